@@ -1,0 +1,45 @@
+"""One place that initialises Taichi, so that every solver in a process agrees on the arch."""
+
+from __future__ import annotations
+
+
+import taichi as ti
+
+from .config import ARCHES, ConfigError
+
+_current: str | None = None
+
+
+def init_taichi(arch: str = "cpu", *, debug: bool = False) -> str:
+    """Initialise Taichi once per process for ``arch`` (cpu | gpu | auto); returns the arch in use.
+
+    ``gpu`` fails loudly when no GPU backend can start (Taichi itself would silently fall back to
+    the CPU, which would make a GPU benchmark meaningless). Re-initialising with another arch resets
+    Taichi: solvers built before are invalid afterwards.
+    """
+    global _current
+    if arch not in ARCHES:
+        raise ConfigError(f"sim.arch = {arch!r} is invalid: allowed one of {ARCHES}")
+    if _current is not None and arch in (_current, "auto"):
+        return _current
+    if _current is not None:
+        ti.reset()
+    kwargs = dict(default_fp=ti.f32, debug=debug, log_level=ti.WARN)
+    if arch == "cpu":
+        ti.init(arch=ti.cpu, **kwargs)
+    else:
+        ti.init(arch=ti.gpu, **kwargs)
+        got = ti.lang.impl.current_cfg().arch
+        if got in (ti.x64, ti.arm64):
+            if arch == "gpu":
+                ti.reset()
+                _current = None
+                raise ConfigError("sim.arch = 'gpu' but no GPU backend (CUDA, Vulkan, Metal) is available: "
+                                  "use arch=cpu or arch=auto")
+    got = ti.lang.impl.current_cfg().arch
+    _current = "cpu" if got in (ti.x64, ti.arm64) else "gpu"
+    return _current
+
+
+def current_arch() -> str | None:
+    return _current
