@@ -1,0 +1,189 @@
+"""Batched execution of action sequences in the source or target world.
+
+One call runs B trajectories (up to 6 actions each, lengths may differ) in one batched simulator:
+every environment follows its own precomputed cup schedule (``sim.skills``), and its state is read
+when each of its actions (settle included) ends. Returns per step (s_t, a_t, s_t+1) and per
+trajectory the outcome (goal reached, final spill, stuck, category), optionally GIF frames.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from .mpm import MPMSolver
+from .render import snapshot
+from .skills import Obstacles, Schedule, cup_boundary, plan_schedule, validate_actions
+from .world import CTRL, WorldConfig, check_world, goal_reached, spill
+
+log = logging.getLogger(__name__)
+
+CATEGORIES = ("successful_pour", "unsuccessful_pour", "stuck_in_plant", "other")
+POUR_EVIDENCE = 0.02  # fraction of water that must leave the controlled cup to call it a pour
+
+
+@dataclass
+class Step:
+    s: np.ndarray
+    a: np.ndarray
+    s_next: np.ndarray
+    stuck: bool = False
+
+
+@dataclass
+class TrajectoryResult:
+    states: np.ndarray  # (T + 1, 5) observed states
+    actions: np.ndarray  # (T, 3) executed actions
+    steps: list[Step]
+    requested_actions: int
+    goal: float | None
+    goal_reached: bool | None
+    final_spill: float
+    stuck: bool
+    stuck_on: str | None
+    category: str
+    unstable: bool
+    frames: list[dict] | None = field(default=None, repr=False)
+
+
+def categorise(states: np.ndarray, stuck_on: str | None, unstable: bool, max_spill: float) -> str:
+    """Trajectory type of the paper's Fig. 4 analysis."""
+    if stuck_on == "plant":
+        return "stuck_in_plant"
+    if unstable:
+        return "other"
+    poured = states[0, 3] - states[:, 3].min() > POUR_EVIDENCE
+    if spill(states[-1]) > max_spill and poured:
+        return "unsuccessful_pour"
+    if poured and states[-1, 4] - states[0, 4] > POUR_EVIDENCE:
+        return "successful_pour"
+    return "other"
+
+
+class PouringExecutor:
+    """Runs batches of trajectories; keeps one compiled solver per batch size for reuse."""
+
+    def __init__(self, cfg: WorldConfig, arch: str | None = None):
+        self.cfg = cfg
+        self.arch = arch
+        self._solvers: dict[int, MPMSolver] = {}
+        self._boundary = cup_boundary(cfg)
+        self.last_timing: dict[str, float] = {}
+
+    def solver(self, n_envs: int) -> MPMSolver:
+        if n_envs not in self._solvers:
+            extra = {"arch": self.arch} if self.arch else {}
+            self._solvers[n_envs] = MPMSolver(self.cfg.sim_config(n_envs, **extra))
+        return self._solvers[n_envs]
+
+    def close(self) -> None:
+        for s in self._solvers.values():
+            s.close()
+        self._solvers.clear()
+
+    def run(self, world: str, starts: np.ndarray, actions: Sequence[Sequence[Sequence[float]]],
+            plant_jitter: np.ndarray | None = None, goals: Sequence[float] | None = None,
+            frame_every: float | None = None, progress: bool = False) -> list[TrajectoryResult]:
+        """Execute ``actions[b]`` from cup pose ``starts[b]`` (x, y[, theta]) in every environment b."""
+        check_world(world)
+        t_all = time.perf_counter()
+        cfg = self.cfg
+        starts = np.asarray(starts, float)
+        B = len(actions)
+        if starts.ndim != 2 or len(starts) != B or starts.shape[1] not in (2, 3):
+            raise ValueError(f"starts: expected ({B}, 2) or ({B}, 3) cup poses, got shape {starts.shape}")
+        if starts.shape[1] == 2:
+            starts = np.concatenate([starts, np.zeros((B, 1))], 1)
+        if goals is not None:
+            goals = np.asarray(goals, float)
+            if goals.shape != (B,) or (goals < 0).any() or (goals > 1).any():
+                raise ValueError(f"goals: expected {B} fractions in [0, 1], got {goals}")
+        jit = np.zeros((B, 3)) if plant_jitter is None else np.asarray(plant_jitter, float).reshape(B, 3)
+        acts = validate_actions(cfg, actions)
+        specs = [cfg.scene(world, starts[b], jit[b]) for b in range(B)]
+
+        # --- kinematic schedules with contact (numpy, before any simulation)
+        t0 = time.perf_counter()
+        interior_lo = np.full(2, cfg.floor)
+        interior_hi = np.asarray(cfg.sim["domain"], float) - cfg.floor
+        scheds: list[Schedule] = []
+        for b in range(B):
+            obst = Obstacles(specs[b].bodies[1:], interior_lo, interior_hi)
+            scheds.append(plan_schedule(cfg, starts[b], acts[b], obst, self._boundary))
+        K = max(len(s.poses) for s in scheds) - 1
+        poses = np.stack([np.concatenate([s.poses, np.repeat(s.poses[-1:], K + 1 - len(s.poses), 0)])
+                          for s in scheds])  # (B, K + 1, 3)
+        timing = {"schedule": time.perf_counter() - t0}
+
+        solver = self.solver(B)
+        solver.reset(specs)
+        bodies, lo, hi = cfg.volume_regions()
+        n_part = solver.particle_counts().astype(float)
+        h = cfg.control_dt
+        n_sub = int(round(h / solver.cfg.dt))
+        end_ticks = [set(s.action_end) for s in scheds]
+        obs: list[list[np.ndarray]] = [[] for _ in range(B)]
+        frames: list[list[dict]] | None = [[] for _ in range(B)] if frame_every else None
+        frame_ticks = max(1, int(round(frame_every / h))) if frame_every else 0
+        t_sim = t_query = t_ctrl = t_frames = 0.0
+
+        def observe(k: int) -> None:
+            nonlocal t_query
+            tq = time.perf_counter()
+            counts = solver.count_in_regions(bodies, lo, hi) / n_part[:, None]
+            cup = solver.body_poses(CTRL)
+            for b in range(B):
+                if k == 0 or k in end_ticks[b]:
+                    obs[b].append(np.array([cup[b, 0], cup[b, 1], cup[b, 2], counts[b, 0], counts[b, 1]]))
+            t_query += time.perf_counter() - tq
+
+        observe(0)
+        any_end = set().union(*end_ticks)
+        iterator = range(K)
+        if progress:
+            from tqdm.auto import tqdm
+
+            iterator = tqdm(iterator, desc=f"simulate {B} x {world}", unit="tick", leave=False)
+        for k in iterator:
+            tc = time.perf_counter()
+            current = solver.body_poses(CTRL)
+            vel = (poses[:, k + 1] - current) / h
+            solver.set_body_velocity(CTRL, vel[:, :2], vel[:, 2])
+            ts = time.perf_counter()
+            solver.step(n_sub)
+            te = time.perf_counter()
+            t_ctrl += ts - tc
+            t_sim += te - ts
+            if k + 1 in any_end:
+                observe(k + 1)
+            if frames is not None and (k + 1) % frame_ticks == 0:
+                tf = time.perf_counter()
+                for b in range(B):
+                    frames[b].append(snapshot(solver, b))
+                t_frames += time.perf_counter() - tf
+        solver.set_body_velocity(CTRL, np.zeros((B, 2)), np.zeros(B))
+        unstable = solver.report_unstable()
+
+        results = []
+        max_spill = cfg.problems["max_spill"]
+        for b in range(B):
+            states = np.stack(obs[b])
+            n_exec = scheds[b].executed
+            steps = [Step(states[t], acts[b][t], states[t + 1], stuck=scheds[b].stuck and t == n_exec - 1)
+                     for t in range(n_exec)]
+            g = None if goals is None else float(goals[b])
+            reached = None if g is None else bool(goal_reached(states[-1], g, cfg.problems["tolerance"], max_spill)
+                                                 and not unstable[b])
+            results.append(TrajectoryResult(
+                states=states, actions=acts[b][:n_exec], steps=steps, requested_actions=len(acts[b]), goal=g,
+                goal_reached=reached, final_spill=float(spill(states[-1])), stuck=scheds[b].stuck,
+                stuck_on=scheds[b].stuck_on, category=categorise(states, scheds[b].stuck_on, bool(unstable[b]), max_spill),
+                unstable=bool(unstable[b]), frames=frames[b] if frames is not None else None))
+        timing.update(simulate=t_sim, control=t_ctrl, state_queries=t_query, frames=t_frames,
+                      total=time.perf_counter() - t_all, sim_seconds=K * h, substeps=K * n_sub)
+        self.last_timing = timing
+        return results

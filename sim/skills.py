@@ -1,0 +1,186 @@
+"""Parameterised skills as kinematic cup trajectories, with contact against static obstacles.
+
+Actions are (skill_id, p1, p2): ``move(x, y)`` = (0, x, y) carries the upright cup along a straight
+line with a min-jerk profile whose peak speed is bounded; ``pour(theta, hold)`` = (1, theta, hold)
+tilts the cup counter-clockwise about its pouring lip to theta, holds, and returns upright. Every
+skill ends with a settle period. The cup is kinematic and the obstacles are static, so each
+environment's whole pose-versus-time schedule is computed before simulating: if the cup would enter
+an obstacle (plant, target cup, tank wall), it stops at the last contact-free pose and stays there
+("stuck"); the rest of that trajectory is not executed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from .motion import min_jerk, min_jerk_duration
+from .scene import Body, Shape
+from .world import WorldConfig
+
+MOVE, POUR = 0, 1
+SKILLS = {"move": MOVE, "pour": POUR}
+CONTACT_MARGIN = 0.001  # m: closer than this to an obstacle counts as contact
+
+
+def move(x: float, y: float) -> np.ndarray:
+    return np.array([MOVE, x, y], float)
+
+
+def pour(theta: float, hold: float) -> np.ndarray:
+    return np.array([POUR, theta, hold], float)
+
+
+def validate_actions(cfg: WorldConfig, seqs: Sequence[Sequence[Sequence[float]]]) -> list[np.ndarray]:
+    """Check (or clip, with ``skills.clip_parameters``) every action before anything is simulated."""
+    sk = cfg.skills
+    out = []
+    for i, seq in enumerate(seqs):
+        a = np.asarray(seq, float)
+        if a.ndim != 2 or a.shape[1] != 3 or len(a) == 0:
+            raise ValueError(f"action sequence {i}: expected a non-empty list of (skill, p1, p2), got shape {a.shape}")
+        if len(a) > sk["max_actions"]:
+            raise ValueError(f"action sequence {i}: {len(a)} actions > skills.max_actions = {sk['max_actions']}")
+        a = a.copy()
+        for t, (kind, p1, p2) in enumerate(a):
+            if kind not in (MOVE, POUR):
+                raise ValueError(f"action sequence {i} step {t}: skill id {kind:g}: allowed {SKILLS}")
+            names = ("move.x", "move.y") if kind == MOVE else ("pour.theta", "pour.hold")
+            for j, (name, val) in enumerate(zip(names, (p1, p2))):
+                lo, hi = sk[name.split(".")[0]][name.split(".")[1]]
+                if not (lo - 1e-9 <= val <= hi + 1e-9) or not math.isfinite(val):
+                    if sk.get("clip_parameters") and math.isfinite(val):
+                        a[t, 1 + j] = min(max(val, lo), hi)
+                    else:
+                        raise ValueError(f"action sequence {i} step {t}: {name} = {val:g} outside its range "
+                                         f"[{lo:g}, {hi:g}] (skills.{name}; set skills.clip_parameters to clip)")
+        out.append(a)
+    return out
+
+
+# ---------------------------------------------------------------------------------- geometry
+def _sdf_shape(shape: Shape, pose: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Signed distance of world points p (n, 2) to a shape of a body at ``pose``."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    d = p - pose[:2]
+    q = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], 1) - np.asarray(shape.center)
+    ca, sa = math.cos(shape.angle), math.sin(shape.angle)
+    q = np.stack([ca * q[:, 0] + sa * q[:, 1], -sa * q[:, 0] + ca * q[:, 1]], 1)
+    size = np.asarray(shape.size)
+    if shape.kind == "box":
+        a = np.abs(q) - size
+        return np.linalg.norm(np.maximum(a, 0), axis=1) + np.minimum(a.max(1), 0)
+    if shape.kind == "capsule":
+        cx = np.clip(q[:, 0], -size[0], size[0])
+        return np.hypot(q[:, 0] - cx, q[:, 1]) - size[1]
+    k0 = np.linalg.norm(q / size, axis=1)
+    k1 = np.linalg.norm(q / size**2, axis=1)
+    return np.where(k0 < 1, (k0 - 1) * size.min(), k0 * (k0 - 1) / np.maximum(k1, 1e-12))
+
+
+@dataclass
+class Obstacles:
+    """Static obstacles of one environment (bodies + tank interior) as a numpy SDF."""
+
+    bodies: list[Body]
+    interior_lo: np.ndarray
+    interior_hi: np.ndarray
+
+    def sdf(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(distance, index of the closest obstacle: body index, or -1 for the tank walls)."""
+        walls = np.minimum((p - self.interior_lo).min(1), (self.interior_hi - p).min(1))
+        best, idx = walls, np.full(len(p), -1)
+        for k, body in enumerate(self.bodies):
+            pose = np.asarray(body.pose, float)
+            for sh in body.shapes:
+                d = _sdf_shape(sh, pose, p)
+                closer = d < best
+                best = np.where(closer, d, best)
+                idx = np.where(closer, k, idx)
+        return best, idx
+
+
+def cup_boundary(cfg: WorldConfig, spacing: float = 0.003) -> np.ndarray:
+    """Points along the controlled cup's outline (body frame) for contact tests."""
+    pts = []
+    for sh in cfg.controlled_cup.shapes():
+        poly = sh.outline()
+        for a, b in zip(poly, np.roll(poly, -1, 0)):
+            n = max(2, int(np.ceil(np.linalg.norm(b - a) / spacing)))
+            pts.append(a + (b - a) * np.linspace(0, 1, n, endpoint=False)[:, None])
+    return np.concatenate(pts)
+
+
+def _to_world(points: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """points (m, 2) in the body frame, poses (k, 3) -> (k, m, 2) world points."""
+    c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+    x = c * points[None, :, 0] - s * points[None, :, 1] + poses[:, None, 0]
+    y = s * points[None, :, 0] + c * points[None, :, 1] + poses[:, None, 1]
+    return np.stack([x, y], -1)
+
+
+# ---------------------------------------------------------------------------------- schedules
+@dataclass
+class Schedule:
+    """Cup poses on the control grid for one environment and the tick that ends each action."""
+
+    poses: np.ndarray  # (K + 1, 3), pose at tick k (time k * control_dt)
+    action_end: list[int] = field(default_factory=list)  # tick at which action i's settle ends
+    executed: int = 0  # actions executed (the last one may be stuck)
+    stuck: bool = False
+    stuck_on: str | None = None  # name of the obstacle body ("plant", "target") or "tank"
+
+
+def plan_schedule(cfg: WorldConfig, start: np.ndarray, actions: np.ndarray, obstacles: Obstacles,
+                  boundary: np.ndarray) -> Schedule:
+    """Pose-versus-tick schedule of a whole action sequence, stopping at the first contact."""
+    h = cfg.control_dt
+    sk = cfg.skills
+    settle = int(round(sk["settle"] / h))
+    poses = [np.asarray(start, float)]
+    sched = Schedule(poses=np.zeros((1, 3)))
+    lip = cfg.controlled_cup.lip
+    for a in actions:
+        p0 = poses[-1]
+        kind = int(a[0])
+        if kind == MOVE:
+            goal = np.array([a[1], a[2], p0[2]])
+            T = float(min_jerk_duration(np.linalg.norm(goal[:2] - p0[:2]), sk["move"]["peak_speed"], min_time=h))
+            n = int(np.ceil(T / h))
+            seg = p0 + (goal - p0) * min_jerk(np.arange(1, n + 1) * h / T)[:, None]
+        else:
+            theta, hold = float(a[1]), float(a[2])
+            T = float(min_jerk_duration(theta, sk["pour"]["peak_rate"], min_time=h))
+            n = int(np.ceil(T / h))
+            c, s = math.cos(p0[2]), math.sin(p0[2])
+            pivot = p0[:2] + np.array([c * lip[0] - s * lip[1], s * lip[0] + c * lip[1]])
+            tilt = theta * min_jerk(np.arange(1, n + 1) * h / T)
+            back = theta * (1 - min_jerk(np.arange(1, n + 1) * h / T))
+            angles = np.concatenate([tilt, np.full(int(round(hold / h)), theta), back])
+            phi = p0[2] + angles
+            # origin = pivot + R(phi) (-lip)
+            ox = pivot[0] - (np.cos(phi) * lip[0] - np.sin(phi) * lip[1])
+            oy = pivot[1] - (np.sin(phi) * lip[0] + np.cos(phi) * lip[1])
+            seg = np.stack([ox, oy, phi], 1)
+        d, idx = obstacles.sdf(_to_world(boundary, seg).reshape(-1, 2))
+        d, idx = d.reshape(len(seg), -1), idx.reshape(len(seg), -1)
+        hit = np.flatnonzero(d.min(1) < CONTACT_MARGIN)
+        sched.executed += 1
+        if len(hit):
+            k = int(hit[0])
+            j = int(np.argmin(d[k]))
+            who = int(idx[k, j])
+            sched.stuck = True
+            sched.stuck_on = "tank" if who < 0 else obstacles.bodies[who].name
+            stop = seg[k - 1] if k > 0 else p0
+            seg = np.concatenate([seg[:k], np.repeat(stop[None], len(seg) - k, 0)])
+        poses.extend(seg)
+        poses.extend([poses[-1]] * settle)
+        sched.action_end.append(len(poses) - 1)
+        if sched.stuck:
+            break
+    sched.poses = np.asarray(poses)
+    return sched

@@ -1,0 +1,143 @@
+"""Pouring worlds: skills, state, outcomes, batching and bad input (one shared solver per world run)."""
+
+import numpy as np
+import pytest
+
+from sim.execute import PouringExecutor, categorise
+from sim.problems import sample_problems
+from sim.skills import move, pour
+from sim.world import WorldConfig, goal_reached, spill, state_distance
+
+SCRIPTS = [
+    ([0.42, 0.20], [pour(0.0, 0.5)]),  # 0: no tilt
+    ([0.42, 0.20], [move(0.31, 0.14), pour(2.2, 1.0)]),  # 1: full tilt over the target, below the canopy
+    ([0.42, 0.20], [move(0.42, 0.32), move(0.27, 0.32), pour(1.5, 0.5)]),  # 2: from above the leaves
+    ([0.42, 0.24], [move(0.15, 0.24), pour(2.0, 0.5)]),  # 3: straight through a leaf
+]
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return WorldConfig.load()
+
+
+@pytest.fixture(scope="module")
+def executor(cfg):
+    ex = PouringExecutor(cfg)
+    yield ex
+    ex.close()
+
+
+@pytest.fixture(scope="module")
+def runs(executor):
+    starts = np.array([s for s, _ in SCRIPTS])
+    acts = [a for _, a in SCRIPTS]
+    return {w: executor.run(w, starts, acts, goals=[0.5] * len(SCRIPTS)) for w in ("source", "target")}
+
+
+def test_pour_at_zero_angle_moves_no_water(runs):
+    for world in ("source", "target"):
+        r = runs[world][0]
+        assert r.states[-1, 3] == 1.0 and r.states[-1, 4] == 0.0
+        assert r.category == "other"
+
+
+def test_full_tilt_over_target_fills_it_in_source_world(runs):
+    r = runs["source"][1]
+    assert r.states[-1, 4] > 0.7, r.states[-1]
+    assert r.category == "successful_pour" or r.final_spill > 0.02
+    assert len(r.steps) == 2 and not r.stuck
+
+
+def test_pour_from_above_the_leaves_spills_more_in_target_world(runs):
+    src, tgt = runs["source"][2], runs["target"][2]
+    assert tgt.final_spill > src.final_spill + 0.2, (src.final_spill, tgt.final_spill)
+    assert tgt.category == "unsuccessful_pour"
+
+
+def test_path_through_a_leaf_is_stuck(runs):
+    tgt, src = runs["target"][3], runs["source"][3]
+    assert tgt.stuck and tgt.stuck_on == "plant" and tgt.category == "stuck_in_plant"
+    assert len(tgt.steps) == 1 and tgt.steps[0].stuck  # the pour after it never runs
+    assert tgt.states[-1, 0] > 0.2  # stopped at contact, short of x = 0.15
+    assert not src.stuck and len(src.steps) == 2
+
+
+def test_steps_chain_states(runs):
+    for b, r in enumerate(runs["target"]):
+        for t, st in enumerate(r.steps):
+            np.testing.assert_array_equal(st.s, r.states[t])
+            np.testing.assert_array_equal(st.s_next, r.states[t + 1])
+        np.testing.assert_allclose(r.states[0], [*SCRIPTS[b][0], 0, 1, 0], atol=1e-6)
+
+
+def test_batch_independence_and_determinism(executor, runs):
+    """Re-running with different actions in environments 2 and 3 leaves 0 and 1 bit-identical."""
+    starts = np.array([s for s, _ in SCRIPTS])
+    acts = [SCRIPTS[0][1], SCRIPTS[1][1], [pour(0.5, 0.0)], [move(0.45, 0.1)]]
+    again = executor.run("target", starts, acts)
+    for b in (0, 1):
+        np.testing.assert_array_equal(again[b].states, runs["target"][b].states)
+    assert not np.array_equal(again[3].states[-1], runs["target"][3].states[-1])
+
+
+def test_categories():
+    full = np.array([0.4, 0.2, 0, 1.0, 0.0])
+    good = np.array([0.3, 0.14, 0, 0.4, 0.6])
+    bad = np.array([0.3, 0.3, 0, 0.4, 0.1])
+    assert categorise(np.stack([full, good]), None, False, 0.02) == "successful_pour"
+    assert categorise(np.stack([full, bad]), None, False, 0.02) == "unsuccessful_pour"
+    assert categorise(np.stack([full, full]), "plant", False, 0.02) == "stuck_in_plant"
+    assert categorise(np.stack([full, full]), "target", False, 0.02) == "other"
+    assert categorise(np.stack([full, good]), None, True, 0.02) == "other"
+
+
+def test_state_helpers():
+    s = np.array([0.3, 0.14, 0.0, 0.39, 0.6])
+    assert spill(s) == pytest.approx(0.01)
+    assert goal_reached(s, 0.62, 0.05) and not goal_reached(s, 0.5, 0.05)
+    assert not goal_reached(np.array([0, 0, 0, 0.3, 0.6]), 0.6, 0.05)  # spill 0.1
+    d = state_distance(s, s + np.array([0.03, 0.04, 0.0, 0.1, -0.1]))
+    assert d == pytest.approx(0.05 + 0.2)
+    assert state_distance(s, s, {"pose": 2.0, "volume": 0.5}) == 0.0
+
+
+def test_problem_sampler_is_seeded_and_in_range(cfg):
+    a = sample_problems(cfg, 5, seed=3)
+    b = sample_problems(cfg, 5, seed=3)
+    for p, q in zip(a, b):
+        np.testing.assert_array_equal(p.start, q.start)
+        assert p.goal == q.goal
+    for p in a:
+        assert cfg.problems["start_x"][0] <= p.start[0] <= cfg.problems["start_x"][1]
+        assert cfg.problems["goal"][0] <= p.goal <= cfg.problems["goal"][1]
+        assert np.all(np.abs(p.plant_jitter[:2]) <= cfg.plant["jitter_xy"])
+    assert all((p.plant_jitter == 0).all() for p in sample_problems(cfg, 3, seed=0, world="source"))
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    ({"world": "moon"}, "world = 'moon'"),
+    ({"actions": [[pour(3.0, 0.5)]]}, r"pour.theta = 3 outside its range \[0, 2.2\]"),
+    ({"actions": [[move(0.9, 0.1)]]}, "move.x"),
+    ({"actions": [[]]}, "non-empty"),
+    ({"actions": [[pour(0.1, 0.1)] * 7]}, "max_actions = 6"),
+    ({"actions": [[[5, 0.1, 0.1]]]}, "skill id 5"),
+    ({"goals": [1.5]}, r"fractions in \[0, 1\]"),
+])
+def test_bad_input_fails_before_simulating(cfg, kwargs, match):
+    ex = PouringExecutor(cfg)
+    args = {"world": "target", "starts": np.array([[0.42, 0.2]]), "actions": [[pour(0.1, 0.1)]]}
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        ex.run(**args)
+    assert ex._solvers == {}  # nothing was built or simulated
+
+
+def test_parameters_clip_when_configured(cfg):
+    from sim.skills import validate_actions
+
+    clipped = WorldConfig.from_mapping({**cfg.__dict__, "controlled_cup": cfg.controlled_cup.__dict__,
+                                        "target_cup": cfg.target_cup.__dict__,
+                                        "skills": {**cfg.skills, "clip_parameters": True}})
+    (a,) = validate_actions(clipped, [[pour(3.0, 2.0)]])
+    np.testing.assert_allclose(a[0], [1, 2.2, 1.0])
