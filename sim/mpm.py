@@ -73,6 +73,12 @@ class MPMSolver:
         self.nan_flag = ti.field(ti.i32)
         self.pinned = ti.field(ti.i32)
         fb.dense(ti.i, self.B).place(self.n_part, self.n_shapes, self.nan_flag, self.pinned)
+        # grid nodes each environment's particles touch: [lo, hi] per axis, this and next substep
+        self.box_cur = ti.Vector.field(dim, ti.i32)
+        self.box_cur_hi = ti.Vector.field(dim, ti.i32)
+        self.box_next = ti.Vector.field(dim, ti.i32)
+        self.box_next_hi = ti.Vector.field(dim, ti.i32)
+        fb.dense(ti.i, self.B).place(self.box_cur, self.box_cur_hi, self.box_next, self.box_next_hi)
         self.grid_v = ti.Vector.field(dim, ti.f32)
         self.grid_m = ti.field(ti.f32)
         fb.dense(ti.axes(*range(dim + 1)), (self.B,) + self.res).place(self.grid_v, self.grid_m)
@@ -81,8 +87,9 @@ class MPMSolver:
         self.body_rot = ti.field(ti.f32)
         self.body_omega = ti.field(ti.f32)
         self.body_cs = ti.Vector.field(2, ti.f32)  # cos, sin of body_rot, refreshed each substep
+        self.body_radius = ti.field(ti.f32)  # bounding radius about the body origin (SDF culling)
         fb.dense(ti.ij, (self.B, self.NB)).place(self.body_pos, self.body_vel, self.body_rot,
-                                                   self.body_omega, self.body_cs)
+                                                   self.body_omega, self.body_cs, self.body_radius)
         self.shape_kind = ti.field(ti.i32)
         self.shape_body = ti.field(ti.i32)
         self.shape_c = ti.Vector.field(2, ti.f32)
@@ -116,6 +123,7 @@ class MPMSolver:
         ssize = np.ones((self.B, self.NS, 2), np.float32)
         n_shapes = np.zeros(self.B, np.int32)
         bstate = np.zeros((self.B, self.NB, 6), np.float32)
+        radius = np.zeros((self.B, self.NB), np.float32)
         for b, spec in enumerate(specs):
             if len(spec.bodies) > self.NB:
                 raise ConfigError(f"env {b}: {len(spec.bodies)} bodies > sim.max_bodies = {self.NB}")
@@ -132,6 +140,8 @@ class MPMSolver:
             s = 0
             for k, body in enumerate(spec.bodies):
                 bstate[b, k, :3] = body.pose
+                if body.shapes:
+                    radius[b, k] = max(np.linalg.norm(sh.outline(), axis=1).max() for sh in body.shapes) + 1e-3
                 for outline in body.world_outlines():
                     if (outline.min(0) < -1e-6).any() or (outline.max(0) > np.asarray(cfg.domain) + 1e-6).any():
                         raise ConfigError(f"env {b}: collider of body {body.name!r} at pose {body.pose} "
@@ -161,8 +171,12 @@ class MPMSolver:
         self.shape_cs.from_numpy(scs)
         self.shape_size.from_numpy(ssize)
         self.n_shapes.from_numpy(n_shapes)
+        self.body_radius.from_numpy(radius)
         self._body_state = bstate
         self._push_bodies()
+        self.grid_v.fill(0.0)
+        self.grid_m.fill(0.0)
+        self._full_boxes()
         self.time = 0.0
         self._reported: set[int] = set()
 
@@ -316,10 +330,13 @@ class MPMSolver:
                 idx = _WALL - 2 * d - 1
         if ti.static(self.dim == 2):
             for s in range(self.n_shapes[b]):
-                ps = self._shape_sdf(b, s, p)
-                if ps < phi:
-                    phi = ps
-                    idx = s
+                k = self.shape_body[b, s]
+                # cull: a shape cannot be closer than its body's bounding circle
+                if (p - self.body_pos[b, k]).norm() - self.body_radius[b, k] < phi:
+                    ps = self._shape_sdf(b, s, p)
+                    if ps < phi:
+                        phi = ps
+                        idx = s
         return phi, idx
 
     @ti.func
@@ -381,14 +398,38 @@ class MPMSolver:
             self.grid_m[gi] += weight * self.p_mass
 
     @ti.kernel
+    def _full_boxes(self):
+        for b in range(self.B):
+            for d in ti.static(range(self.dim)):
+                self.box_cur[b][d] = 0
+                self.box_next[b][d] = 0
+                self.box_cur_hi[b][d] = self.res[d] - 1
+                self.box_next_hi[b][d] = self.res[d] - 1
+
+    @ti.func
+    def _in_box(self, I):
+        """Is grid node I = (b, i, j[, k]) inside environment b's active box?"""
+        inside = True
+        for d in ti.static(range(self.dim)):
+            inside = inside & (I[d + 1] >= self.box_cur[I[0]][d]) & (I[d + 1] <= self.box_cur_hi[I[0]][d])
+        return inside
+
+    @ti.kernel
     def _substep(self):
         dim = ti.static(self.dim)
         dx = ti.static(self.cfg.dx)
         dt = ti.static(self.cfg.dt)
-        # 1. clear the grid
+        # 1. clear the nodes the last particle-to-grid wrote (everything else is zero already), then
+        #    make the box of the particles' current stencils the active box
         for I in ti.grouped(self.grid_m):
-            self.grid_v[I] = ti.Vector.zero(ti.f32, dim)
-            self.grid_m[I] = 0.0
+            if self._in_box(I):
+                self.grid_v[I] = ti.Vector.zero(ti.f32, dim)
+                self.grid_m[I] = 0.0
+        for b in range(self.B):
+            self.box_cur[b] = self.box_next[b]
+            self.box_cur_hi[b] = self.box_next_hi[b]
+            self.box_next[b] = ti.Vector([self.res[d] for d in ti.static(range(dim))])
+            self.box_next_hi[b] = ti.Vector.zero(ti.i32, dim)
         # 2. particle to grid
         if ti.static(self.serial_p2g):
             for b in range(self.B):
@@ -400,7 +441,9 @@ class MPMSolver:
                     self._p2g(b, p)
         # 3. grid update: momentum to velocity, gravity, colliders
         for I in ti.grouped(self.grid_m):
-            m = self.grid_m[I]
+            m = 0.0
+            if self._in_box(I):
+                m = self.grid_m[I]
             if m > 0:
                 v = self.grid_v[I] / m
                 v[1] -= dt * self.cfg.gravity
@@ -457,6 +500,9 @@ class MPMSolver:
                 if clamped:
                     self.pinned[b] += 1
                 self.x[b, p] = xn
+                nb = ti.cast(xn / dx - 0.5, ti.i32)
+                ti.atomic_min(self.box_next[b], nb)
+                ti.atomic_max(self.box_next_hi[b], nb + 2)
                 self.v[b, p] = new_v
                 self.C[b, p] = new_C
                 self.J[b, p] = J

@@ -184,3 +184,15 @@ def plan_schedule(cfg: WorldConfig, start: np.ndarray, actions: np.ndarray, obst
             break
     sched.poses = np.asarray(poses)
     return sched
+
+
+def random_actions(cfg: WorldConfig, n: int, rng: np.random.Generator, p_pour: float = 0.5) -> np.ndarray:
+    """``n`` uniformly random actions (skill chosen with probability ``p_pour`` of a pour)."""
+    sk = cfg.skills
+    out = np.empty((n, 3))
+    for i in range(n):
+        if rng.random() < p_pour:
+            out[i] = pour(rng.uniform(*sk["pour"]["theta"]), rng.uniform(*sk["pour"]["hold"]))
+        else:
+            out[i] = move(rng.uniform(*sk["move"]["x"]), rng.uniform(*sk["move"]["y"]))
+    return out

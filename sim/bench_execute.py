@@ -1,0 +1,86 @@
+"""Wall time to execute a batch of target-world trajectories, with the share per stage, and a
+resolution check of a reference pour.
+
+    python -m sim.bench_execute [--n 32] [--actions 6] [--out benchmarks/execute.json] [--resolution]
+"""
+
+import argparse
+import json
+import os
+import time
+
+import numpy as np
+
+from .execute import PouringExecutor
+from .problems import sample_problems
+from .skills import move, pour, random_actions
+from .world import WorldConfig
+
+
+def bench_batch(cfg: WorldConfig, n: int, n_actions: int, seed: int = 0) -> dict:
+    rng = np.random.default_rng(seed)
+    probs = sample_problems(cfg, n, seed)
+    acts = [random_actions(cfg, n_actions, rng) for _ in range(n)]
+    ex = PouringExecutor(cfg)
+    ex.solver(n)  # compile outside the timed region (once per process and batch size)
+    t0 = time.perf_counter()
+    res = ex.run("target", np.array([p.start[:3] for p in probs]), acts,
+                 plant_jitter=np.array([p.plant_jitter for p in probs]), goals=[p.goal for p in probs], progress=True)
+    wall = time.perf_counter() - t0
+    timing = dict(ex.last_timing)
+    ex.close()
+    cats = {c: sum(r.category == c for r in res) for c in ("successful_pour", "unsuccessful_pour", "stuck_in_plant", "other")}
+    shares = {k: timing[k] / timing["total"] for k in ("schedule", "simulate", "control", "state_queries", "frames")}
+    return {"n": n, "actions": n_actions, "wall_seconds": wall, "timing": timing, "shares": shares,
+            "categories": cats, "executed_actions": int(sum(len(r.steps) for r in res))}
+
+
+def resolution_check(cfg: WorldConfig) -> dict:
+    """Poured fraction of the reference pour (under the canopy) at dx and dx/2."""
+    out = {}
+    for factor in (1, 2):
+        dx = cfg.sim["dx"] / factor
+        sim = dict(cfg.sim, dx=dx, dt=cfg.sim["dt"] / factor, max_particles=cfg.sim["max_particles"] * factor**2)
+        c = WorldConfig.from_mapping({**cfg.__dict__, "sim": sim, "controlled_cup": cfg.controlled_cup.__dict__,
+                                      "target_cup": cfg.target_cup.__dict__})
+        ex = PouringExecutor(c)
+        t0 = time.perf_counter()
+        (r,) = ex.run("target", np.array([[0.42, 0.20]]), [[move(0.31, 0.14), pour(1.5, 0.5)]])
+        ex.close()
+        out[f"dx={dx:g}"] = {"poured_into_target": float(r.states[-1, 4]), "left_in_cup": float(r.states[-1, 3]),
+                             "spill": r.final_spill, "wall_seconds": time.perf_counter() - t0}
+    vals = [v["poured_into_target"] for v in out.values()]
+    out["difference"] = abs(vals[0] - vals[1])
+    return out
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(prog="python -m sim.bench_execute", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n", type=int, default=32)
+    ap.add_argument("--actions", type=int, default=6)
+    ap.add_argument("--out", default="bench_execute.json")
+    ap.add_argument("--resolution", action="store_true", help="also run the resolution check")
+    args = ap.parse_args(argv)
+    cfg = WorldConfig.load()
+    row = bench_batch(cfg, args.n, args.actions)
+    print(f"{args.n} target-world trajectories x {args.actions} actions: {row['wall_seconds']:.1f} s wall "
+          f"({row['timing']['sim_seconds']:.1f} s simulated, {row['timing']['substeps']} substeps), target <= 90 s")
+    for k, v in row["shares"].items():
+        print(f"  {k:14s} {100 * v:5.1f} %")
+    print("  categories:", row["categories"])
+    result = {"batch": row}
+    if args.resolution:
+        res = resolution_check(cfg)
+        result["resolution"] = res
+        for k, v in res.items():
+            print(f"  {k}: {v}")
+    tmp = args.out + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump(result, f, indent=1)
+    os.replace(tmp, args.out)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
