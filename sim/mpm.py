@@ -394,8 +394,12 @@ class MPMSolver:
             for d in ti.static(range(self.dim)):
                 weight *= w[offset[d]][d]
             gi = self._gidx(b, base + offset)
-            self.grid_v[gi] += weight * (mv + affine @ dpos)
-            self.grid_m[gi] += weight * self.p_mass
+            if ti.static(self.serial_p2g):  # this env's scatter runs on one thread: plain adds
+                self.grid_v[gi] = self.grid_v[gi] + weight * (mv + affine @ dpos)
+                self.grid_m[gi] = self.grid_m[gi] + weight * self.p_mass
+            else:
+                self.grid_v[gi] += weight * (mv + affine @ dpos)
+                self.grid_m[gi] += weight * self.p_mass
 
     @ti.kernel
     def _full_boxes(self):
@@ -407,12 +411,38 @@ class MPMSolver:
                 self.box_next_hi[b][d] = self.res[d] - 1
 
     @ti.func
-    def _in_box(self, I):
-        """Is grid node I = (b, i, j[, k]) inside environment b's active box?"""
-        inside = True
-        for d in ti.static(range(self.dim)):
-            inside = inside & (I[d + 1] >= self.box_cur[I[0]][d]) & (I[d + 1] <= self.box_cur_hi[I[0]][d])
-        return inside
+    def _clear_node(self, I):
+        self.grid_v[I] = ti.Vector.zero(ti.f32, self.dim)
+        self.grid_m[I] = 0.0
+
+    @ti.func
+    def _update_node(self, I):
+        """Momentum to velocity, gravity, collider boundary condition at grid node I = (b, i, j[, k])."""
+        m = self.grid_m[I]
+        if m > 0:
+            v = self.grid_v[I] / m
+            v[1] -= self.cfg.dt * self.cfg.gravity
+            b = I[0]
+            pos = ti.Vector.zero(ti.f32, self.dim)
+            for d in ti.static(range(self.dim)):
+                pos[d] = I[d + 1] * self.cfg.dx
+            phi, idx = self._closest(b, pos)
+            if phi < 0:
+                n, vc = self._normal_and_velocity(b, idx, pos)
+                v = self._separate(v, vc, n)
+            self.grid_v[I] = v
+
+    @ti.func
+    def _for_active_nodes(self, b, i, fn: ti.template()):
+        """Apply ``fn`` to the nodes of row (b, i) inside environment b's active box."""
+        if self.box_cur[b][0] <= i and i <= self.box_cur_hi[b][0]:
+            if ti.static(self.dim == 2):
+                for j in range(self.box_cur[b][1], self.box_cur_hi[b][1] + 1):
+                    fn(ti.Vector([b, i, j]))
+            else:
+                for j in range(self.box_cur[b][1], self.box_cur_hi[b][1] + 1):
+                    for k in range(self.box_cur[b][2], self.box_cur_hi[b][2] + 1):
+                        fn(ti.Vector([b, i, j, k]))
 
     @ti.kernel
     def _substep(self):
@@ -420,11 +450,10 @@ class MPMSolver:
         dx = ti.static(self.cfg.dx)
         dt = ti.static(self.cfg.dt)
         # 1. clear the nodes the last particle-to-grid wrote (everything else is zero already), then
-        #    make the box of the particles' current stencils the active box
-        for I in ti.grouped(self.grid_m):
-            if self._in_box(I):
-                self.grid_v[I] = ti.Vector.zero(ti.f32, dim)
-                self.grid_m[I] = 0.0
+        #    make the box of the particles' current stencils the active box. Grid loops run over
+        #    rows (b, i) and only the active part of each row, so empty tank costs nothing.
+        for b, i in ti.ndrange(self.B, self.res[0]):
+            self._for_active_nodes(b, i, self._clear_node)
         for b in range(self.B):
             self.box_cur[b] = self.box_next[b]
             self.box_cur_hi[b] = self.box_next_hi[b]
@@ -432,6 +461,7 @@ class MPMSolver:
             self.box_next_hi[b] = ti.Vector.zero(ti.i32, dim)
         # 2. particle to grid
         if ti.static(self.serial_p2g):
+            ti.loop_config(block_dim=1)  # one environment per task, so environments spread over threads
             for b in range(self.B):
                 for p in range(self.n_part[b]):
                     self._p2g(b, p)
@@ -440,22 +470,8 @@ class MPMSolver:
                 if p < self.n_part[b]:
                     self._p2g(b, p)
         # 3. grid update: momentum to velocity, gravity, colliders
-        for I in ti.grouped(self.grid_m):
-            m = 0.0
-            if self._in_box(I):
-                m = self.grid_m[I]
-            if m > 0:
-                v = self.grid_v[I] / m
-                v[1] -= dt * self.cfg.gravity
-                b = I[0]
-                pos = ti.Vector.zero(ti.f32, dim)
-                for d in ti.static(range(dim)):
-                    pos[d] = I[d + 1] * dx
-                phi, idx = self._closest(b, pos)
-                if phi < 0:
-                    n, vc = self._normal_and_velocity(b, idx, pos)
-                    v = self._separate(v, vc, n)
-                self.grid_v[I] = v
+        for b, i in ti.ndrange(self.B, self.res[0]):
+            self._for_active_nodes(b, i, self._update_node)
         # 4. grid to particle, advection, collider projection, safety clamp
         for b, p in ti.ndrange(self.B, self.N):
             if p < self.n_part[b]:
