@@ -1,0 +1,23 @@
+"""OMPL kinodynamic RRT planner with a learned dynamics model and an MDE model precondition.
+
+Public API: :class:`Planner` (``plan`` / ``plan_candidates``), :class:`PlannerConfig`,
+:class:`ActionSampler` and :func:`rollout` (shared with the Random Actions baseline), the result
+dataclasses and the interface helpers in :mod:`planner.interfaces`. Stand-in models live in
+:mod:`planner.standins`; ``python -m planner.bench`` measures planning speed.
+"""
+
+from .config import PlannerConfig, ProblemDistribution
+from .interfaces import (ACTION_DIM, FEATURE_DIM, SKILL_MOVE, SKILL_POUR, STATE_DIM, DeviationEstimator,
+                         DynamicsModel, features, goal_distance, goal_reached, spill)
+from .problems import PlanningProblem, sample_problems
+from .results import CandidateSet, PlannerStats, PlanResult, Trajectory
+from .rollout import rollout
+from .rrt import Planner
+from .sampling import ActionSampler
+
+__all__ = [
+    "ACTION_DIM", "FEATURE_DIM", "SKILL_MOVE", "SKILL_POUR", "STATE_DIM",
+    "ActionSampler", "CandidateSet", "DeviationEstimator", "DynamicsModel", "PlanResult",
+    "Planner", "PlannerConfig", "PlannerStats", "PlanningProblem", "ProblemDistribution",
+    "Trajectory", "features", "goal_distance", "goal_reached", "rollout", "sample_problems", "spill",
+]

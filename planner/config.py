@@ -1,0 +1,201 @@
+"""Planner configuration: bounds, action ranges, budgets.
+
+The defaults here are the single source of truth; ``configs/planner/default.yaml`` mirrors them
+(a test keeps the two in sync) so that Hydra runs can override any field. The dataclasses do not
+read the YAML themselves because ``configs/`` is not shipped inside the installed package.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any, Mapping
+
+Range = tuple[float, float]
+
+
+def _range(name: str, r: Any, lo_limit: float | None = None, hi_limit: float | None = None) -> Range:
+    try:
+        lo, hi = (float(v) for v in r)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a pair (low, high), got {r!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
+        raise ValueError(f"{name} must be a finite range with low <= high, got ({lo}, {hi})")
+    if lo_limit is not None and lo < lo_limit:
+        raise ValueError(f"{name} low end {lo} is below {lo_limit}")
+    if hi_limit is not None and hi > hi_limit:
+        raise ValueError(f"{name} high end {hi} is above {hi_limit}")
+    return (lo, hi)
+
+
+@dataclass(frozen=True)
+class ProblemDistribution:
+    """Distribution of planning problems (start pose, goal amount) used by the bench.
+
+    Starts are upright and full (v_ctrl = 1, v_tgt = 0) at a random pose away from the target
+    cup; the goal is the fraction ``g`` of all water that should end in the target cup.
+    """
+
+    start_x: Range = (0.3, 0.55)
+    start_y: Range = (0.05, 0.3)
+    goal: Range = (0.3, 0.8)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "start_x", _range("problems.start_x", self.start_x))
+        object.__setattr__(self, "start_y", _range("problems.start_y", self.start_y))
+        object.__setattr__(self, "goal", _range("problems.goal", self.goal, 0.0, 1.0))
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """All planner settings (defaults = the design brief / paper protocol).
+
+    Budgets are per candidate (one RRT run). ``propagation_budget`` counts (state, action) pairs
+    evaluated by the dynamics model and the MDE (including those evaluated in a batch and later
+    rejected), which makes it the deterministic budget; ``time_budget`` is a wall-clock safety net.
+    """
+
+    # state bounds: x, y, theta, v_ctrl, v_tgt
+    state_low: tuple[float, float, float, float, float] = (0.05, 0.03, 0.0, 0.0, 0.0)
+    state_high: tuple[float, float, float, float, float] = (0.55, 0.35, 2.4, 1.0, 1.0)
+    # action parameter ranges
+    move_x: Range = (0.05, 0.55)
+    move_y: Range = (0.03, 0.35)
+    pour_theta: Range = (0.0, 2.4)
+    pour_hold: Range = (0.0, 1.5)
+    #: probability that the action sampler picks ``move`` (otherwise ``pour``)
+    p_move: float = 0.5
+    max_actions: int = 6
+    goal_tol: float = 0.05
+    spill_limit: float = 0.02
+    #: precondition mu + beta * sigma < d_max; defaults are the paper's test-time values,
+    #: every planning call may override them
+    beta: float = 2.0
+    d_max: float = 0.07
+    n_candidates: int = 9
+    time_budget: float = 1.0
+    propagation_budget: int = 20000
+    seed: int = 0
+    #: RRT goal bias (fraction of tree-growth targets drawn from the goal region)
+    goal_bias: float = 0.05
+    #: first / largest number of actions evaluated in one batch for one tree node
+    batch_min: int = 16
+    batch_max: int = 256
+    #: at most this many actions are tried from a node one step below the depth limit (only
+    #: goal-reaching transitions are admissible there)
+    last_step_proposals: int = 32
+    #: weights of the planner's nearest-neighbour metric: |(x,y)|, |theta|, |v_ctrl|, |v_tgt|
+    distance_weights: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
+    #: clip predicted states into the state bounds (a regression model can leave them slightly,
+    #: e.g. theta = -1e-3 after a pour); if False such transitions are rejected instead
+    clip_to_bounds: bool = True
+    #: keep predicted states that can no longer reach the goal out of the tree (spill above the
+    #: limit, too much water in the target cup, too little water left); see rrt._Search._dead
+    prune_dead_states: bool = True
+    #: torch intra-op threads while planning (restored afterwards); None leaves torch alone.
+    #: 1 is fastest for the small batches the planner evaluates and avoids thread-pool stalls
+    #: on busy 2-core machines
+    torch_threads: int | None = 1
+    #: OMPL log level while planning: "none", "error", "warn", "info", "debug"
+    ompl_log_level: str = "error"
+    problems: ProblemDistribution = field(default_factory=ProblemDistribution)
+
+    def __post_init__(self) -> None:
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731  (frozen dataclass)
+        lo = tuple(float(v) for v in self.state_low)
+        hi = tuple(float(v) for v in self.state_high)
+        if len(lo) != 5 or len(hi) != 5:
+            raise ValueError("state_low and state_high must have 5 entries (x, y, theta, v_ctrl, v_tgt)")
+        names = ("x", "y", "theta", "v_ctrl", "v_tgt")
+        for n, a, b in zip(names, lo, hi):
+            _range(f"state bounds for {n}", (a, b))
+        set_("state_low", lo)
+        set_("state_high", hi)
+        set_("move_x", _range("move_x", self.move_x))
+        set_("move_y", _range("move_y", self.move_y))
+        set_("pour_theta", _range("pour_theta", self.pour_theta))
+        set_("pour_hold", _range("pour_hold", self.pour_hold, 0.0))
+        w = tuple(float(v) for v in self.distance_weights)
+        if len(w) != 4 or any(not math.isfinite(v) or v < 0 for v in w) or sum(w) == 0:
+            raise ValueError(f"distance_weights must be 4 finite non-negative numbers, not all 0; got {w}")
+        set_("distance_weights", w)
+        if not 0.0 <= self.p_move <= 1.0:
+            raise ValueError(f"p_move={self.p_move} outside allowed range [0, 1]")
+        if int(self.max_actions) < 1:
+            raise ValueError(f"max_actions={self.max_actions} must be >= 1")
+        if not self.goal_tol > 0:
+            raise ValueError(f"goal_tol={self.goal_tol} must be > 0")
+        if not 0.0 <= self.spill_limit <= 1.0:
+            raise ValueError(f"spill_limit={self.spill_limit} outside allowed range [0, 1]")
+        if not (math.isfinite(self.beta) and math.isfinite(self.d_max)):
+            raise ValueError("beta and d_max must be finite")
+        if int(self.n_candidates) < 1:
+            raise ValueError(f"n_candidates={self.n_candidates} must be >= 1")
+        if not self.time_budget > 0:
+            raise ValueError(f"time_budget={self.time_budget} must be > 0 (seconds)")
+        if int(self.propagation_budget) < 1:
+            raise ValueError(f"propagation_budget={self.propagation_budget} must be >= 1")
+        if not 0.0 <= self.goal_bias <= 1.0:
+            raise ValueError(f"goal_bias={self.goal_bias} outside allowed range [0, 1]")
+        if int(self.last_step_proposals) < 1:
+            raise ValueError(f"last_step_proposals={self.last_step_proposals} must be >= 1")
+        if not 1 <= int(self.batch_min) <= int(self.batch_max):
+            raise ValueError(f"need 1 <= batch_min <= batch_max, got {self.batch_min}, {self.batch_max}")
+        if self.torch_threads is not None and int(self.torch_threads) < 1:
+            raise ValueError(f"torch_threads={self.torch_threads} must be >= 1 or None")
+        if self.ompl_log_level not in _LOG_LEVELS:
+            raise ValueError(f"ompl_log_level={self.ompl_log_level!r} not one of {sorted(_LOG_LEVELS)}")
+        for k in ("max_actions", "n_candidates", "propagation_budget", "seed", "batch_min", "batch_max",
+                  "last_step_proposals"):
+            set_(k, int(getattr(self, k)))
+        if isinstance(self.problems, Mapping):
+            set_("problems", ProblemDistribution(**_known(ProblemDistribution, self.problems, "problems")))
+
+    # -- conversion ----------------------------------------------------------------------------
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any] | None = None, **overrides: Any) -> "PlannerConfig":
+        """Build from a (Hydra/OmegaConf or plain) mapping; unknown keys are an error."""
+        data: dict[str, Any] = dict(_to_plain(d) or {})
+        data.update(overrides)
+        data.pop("_target_", None)
+        return cls(**_known(cls, data, "planner config"))
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain nested dict with lists for ranges (the YAML layout)."""
+        def conv(v: Any) -> Any:
+            if dataclasses.is_dataclass(v):
+                return {f.name: conv(getattr(v, f.name)) for f in fields(v)}
+            if isinstance(v, tuple):
+                return [conv(x) for x in v]
+            return v
+
+        return conv(self)
+
+    def replace(self, **changes: Any) -> "PlannerConfig":
+        return dataclasses.replace(self, **changes)
+
+
+_LOG_LEVELS = {"none", "error", "warn", "info", "debug"}
+
+
+def _known(cls: type, data: Mapping[str, Any], what: str) -> dict[str, Any]:
+    names = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ValueError(f"unknown {what} key(s) {unknown}; allowed: {sorted(names)}")
+    return dict(data)
+
+
+def _to_plain(d: Any) -> Any:
+    """Convert an OmegaConf container to plain Python without importing omegaconf eagerly."""
+    if d is None:
+        return None
+    try:
+        from omegaconf import DictConfig, ListConfig, OmegaConf
+
+        if isinstance(d, (DictConfig, ListConfig)):
+            return OmegaConf.to_container(d, resolve=True)
+    except ImportError:  # pragma: no cover - omegaconf is a project dependency
+        pass
+    return d
