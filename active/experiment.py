@@ -1,0 +1,67 @@
+"""Experiment protocol settings, validated before any compute."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Any, Mapping
+
+from .methods import METHODS, check_method
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    name: str = "quick"
+    methods: tuple[str, ...] = ("active_balanced", "random_plan")
+    iterations: int = 4
+    trajectories_per_iteration: int = 4
+    refit_every: int = 4
+    candidates: int = 4
+    test_problems: int = 8
+    random_actions_length: int = 6
+    d_max: float = 0.07
+    beta_train: tuple[float, float] = (-2.0, 1.0)
+    beta_switch_iteration: int = 10
+    beta_test: float = 2.0
+    calibration_trajectories: int = 8
+    planner_propagation_budget: int = 5000  # per candidate: the deterministic budget
+    planner_time_budget: float = 30.0  # s per candidate: a safety net only (wall clock is not reproducible)
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any], method: str = "all") -> "ExperimentConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown experiment key(s) {unknown}; known keys: {sorted(known)}")
+        d = dict(data)
+        d["methods"] = tuple(d.get("methods", cls.methods))
+        d["beta_train"] = tuple(float(b) for b in d.get("beta_train", cls.beta_train))
+        if method != "all":
+            d["methods"] = (check_method(method),)
+        cfg = cls(**d)
+        cfg.validate()
+        return cfg
+
+    def validate(self) -> None:
+        if not self.methods:
+            raise ValueError(f"experiment.methods is empty: allowed a list from {sorted(METHODS)}")
+        for m in self.methods:
+            check_method(m)
+        for name in ("iterations", "trajectories_per_iteration", "refit_every", "candidates", "test_problems",
+                     "random_actions_length", "calibration_trajectories", "planner_propagation_budget"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or v < 1:
+                raise ValueError(f"experiment.{name} = {v!r}: allowed an integer >= 1")
+        if not 1 <= self.random_actions_length <= 6:
+            raise ValueError(f"experiment.random_actions_length = {self.random_actions_length}: allowed 1..6")
+        if not self.d_max > 0:
+            raise ValueError(f"experiment.d_max = {self.d_max}: allowed > 0")
+        if len(self.beta_train) != 2:
+            raise ValueError(f"experiment.beta_train = {self.beta_train}: allowed [beta_early, beta_late]")
+        if self.beta_switch_iteration < 0:
+            raise ValueError(f"experiment.beta_switch_iteration = {self.beta_switch_iteration}: allowed >= 0")
+        if not self.planner_time_budget > 0:
+            raise ValueError(f"experiment.planner_time_budget = {self.planner_time_budget}: allowed > 0 s")
+
+    def beta(self, iteration: int) -> float:
+        """Training precondition beta for a 0-based iteration (paper: -2 before iteration 10, 1 after)."""
+        return self.beta_train[0] if iteration < self.beta_switch_iteration else self.beta_train[1]

@@ -1,0 +1,340 @@
+"""The active-learning experiment: collect trajectories with a method, refit the MDE, test.
+
+Per method and seed (design section 4): each iteration samples training problems, plans N candidate
+trajectories per problem with the current MDE precondition (beta from the schedule), lets the method
+choose one, executes the chosen trajectories in the target world (batched, M at a time), labels each
+transition with d(f_hat(s, a), s'), refits the MDE after every M trajectories, and then tests: the
+same test problems for every method, planned with beta_test, executed, success = plan found and goal
+reached. Everything a run needs to continue is written atomically after every iteration; a killed
+run started again with the same output directory resumes from the last completed iteration and, on
+the CPU with the same seed, ends with the same results (all randomness is derived from
+(seed, purpose, iteration, index), never from history).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import json
+import logging
+import time
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import torch
+
+from planner import ActionSampler, Planner, PlannerConfig, features
+from sim.execute import PouringExecutor
+from sim.problems import Problem, sample_problems
+from sim.skills import pour
+from sim.world import WorldConfig, state_distance
+
+from .experiment import ExperimentConfig
+from .io import load_torch, save_torch, write_csv, write_json
+from .methods import METHODS, choose
+from .tracking import Tracker
+
+log = logging.getLogger(__name__)
+
+RESULT_FIELDS = ["method", "seed", "iteration", "n_trajectories", "n_transitions", "beta", "test_success",
+                 "test_plan_found", "train_goal_reached", "fallbacks", "plan_seconds", "sim_seconds", "fit_seconds",
+                 "test_seconds", "iteration_seconds"]
+CATEGORY_FIELDS = ["method", "seed", "iteration", "trajectory", "category", "source", "n_candidates", "steps",
+                   "stuck", "final_spill", "goal", "goal_reached"]
+CALIBRATION_FIELDS = ["method", "seed", "iteration", "n", "coverage50", "coverage80", "coverage95", "nll"]
+#: result columns that are wall-clock times (excluded when comparing a resumed run with a fresh one)
+TIMING_FIELDS = {"plan_seconds", "sim_seconds", "fit_seconds", "test_seconds", "iteration_seconds"}
+NOOP = np.array([pour(0.0, 0.0)])  # padding trajectory: keeps batch sizes (and compiled solvers) fixed
+
+
+def derive_seed(*keys: Any) -> int:
+    """A 32-bit seed from (seed, purpose, iteration, index...): independent of run history."""
+    ints = [k if isinstance(k, int) else zlib.crc32(str(k).encode()) for k in keys]
+    return int(np.random.SeedSequence(ints).generate_state(1)[0])
+
+
+def config_digest(cfg: Mapping[str, Any]) -> str:
+    """Hash of everything that determines results (not run length, logging or progress bars)."""
+    c = json.loads(json.dumps(cfg, default=str))
+    for k in ("iterations", "methods"):
+        c.get("experiment", {}).pop(k, None)
+    for k in ("wandb", "progress", "method"):
+        c.pop(k, None)
+    return hashlib.sha256(json.dumps(c, sort_keys=True).encode()).hexdigest()[:16]
+
+
+@dataclass
+class Context:
+    """What every method of one run shares: models, simulator, problems, held-out data."""
+
+    cfg: dict
+    exp: ExperimentConfig
+    world: WorldConfig
+    planner_cfg: PlannerConfig
+    dynamics: Any
+    executor: PouringExecutor
+    test_problems: list[Problem]
+    calibration: dict  # X, y tensors of held-out target-world transitions
+    out: Path
+    seed: int
+    progress: bool = True
+    timings: dict = field(default_factory=dict)
+
+
+def build_planner_config(world: WorldConfig, planner: Mapping[str, Any], exp: ExperimentConfig) -> PlannerConfig:
+    """The planner's ranges come from the world (one source of truth for skill limits)."""
+    sk = world.skills
+    d = dict(planner)
+    d.pop("_target_", None)
+    d.update(move_x=list(sk["move"]["x"]), move_y=list(sk["move"]["y"]), pour_theta=list(sk["pour"]["theta"]),
+             pour_hold=list(sk["pour"]["hold"]), max_actions=int(sk["max_actions"]),
+             goal_tol=float(world.problems["tolerance"]), spill_limit=float(world.problems["max_spill"]),
+             d_max=exp.d_max, n_candidates=exp.candidates, propagation_budget=exp.planner_propagation_budget,
+             time_budget=exp.planner_time_budget)
+    lo, hi = list(d["state_low"]), list(d["state_high"])
+    lo[0], hi[0] = min(lo[0], sk["move"]["x"][0]), max(hi[0], sk["move"]["x"][1])
+    lo[1], hi[1] = min(lo[1], sk["move"]["y"][0]), max(hi[1], sk["move"]["y"][1])
+    hi[2] = max(hi[2], sk["pour"]["theta"][1])
+    d["state_low"], d["state_high"] = lo, hi
+    return PlannerConfig.from_dict(d)
+
+
+def label_transitions(dynamics: Any, s: np.ndarray, a: np.ndarray, s_next: np.ndarray,
+                      weights: Mapping[str, float]) -> np.ndarray:
+    """MDE labels d(f_hat(s, a), s')."""
+    with torch.no_grad():
+        pred = dynamics.predict(torch.as_tensor(s, dtype=torch.float32), torch.as_tensor(a, dtype=torch.float32))
+    return state_distance(pred.double().numpy(), s_next, weights)
+
+
+def execute_padded(ctx: Context, problems: list[Problem], actions: list[np.ndarray], batch: int) -> list:
+    """Run trajectories in the target world in a batch of exactly ``batch`` environments (padded)."""
+    n = len(problems)
+    assert n <= batch
+    pad = batch - n
+    starts = np.array([p.start[:3] for p in problems] + [problems[0].start[:3]] * pad)
+    jit = np.array([p.plant_jitter for p in problems] + [problems[0].plant_jitter] * pad)
+    goals = [p.goal for p in problems] + [problems[0].goal] * pad
+    res = ctx.executor.run("target", starts, list(actions) + [NOOP] * pad, plant_jitter=jit, goals=goals)
+    return res[:n]
+
+
+def make_calibration_set(world: WorldConfig, dynamics: Any, executor: PouringExecutor, sampler: ActionSampler,
+                         n: int, length: int, seed: int) -> dict:
+    """Held-out target-world transitions from random actions (the same for every method of a seed)."""
+    problems = sample_problems(world, n, derive_seed(seed, "calibration"), world="target")
+    rng = np.random.default_rng(derive_seed(seed, "calibration-actions"))
+    acts = [sampler.sample(length, rng) for _ in problems]
+    res = executor.run("target", np.array([p.start[:3] for p in problems]), acts,
+                       plant_jitter=np.array([p.plant_jitter for p in problems]))
+    s, a, s2 = _stack_steps(res)
+    y = label_transitions(dynamics, s, a, s2, world.distance_weights)
+    return {"X": torch.as_tensor(features(s, a)), "y": torch.as_tensor(y)}
+
+
+def _stack_steps(results: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    steps = [st for r in results if not r.unstable for st in r.steps]
+    if not steps:
+        return np.zeros((0, 5)), np.zeros((0, 3)), np.zeros((0, 5))
+    return (np.stack([st.s for st in steps]), np.stack([st.a for st in steps]), np.stack([st.s_next for st in steps]))
+
+
+class MethodRun:
+    """One method of one seed: its dataset, MDE, results; resumable from ``<out>/<method>/state.pt``."""
+
+    def __init__(self, ctx: Context, method: str, make_mde, make_acquisition, tracker: Tracker):
+        self.ctx, self.method = ctx, method
+        self.dir = ctx.out / method
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.make_mde, self.make_acq, self.tracker = make_mde, make_acquisition, tracker
+        self.sampler = ActionSampler(ctx.planner_cfg)
+        self.state = {"completed": 0, "digest": config_digest(ctx.cfg), "X": torch.zeros(0, 8, dtype=torch.float64),
+                      "y": torch.zeros(0, dtype=torch.float64), "results": [], "categories": [], "calibration": [],
+                      "n_trajectories": 0, "mde_path": None}
+        self.mde = make_mde()
+        state_path = self.dir / "state.pt"
+        if state_path.exists():
+            self._resume(state_path)
+
+    # ------------------------------------------------------------------ persistence
+    def _resume(self, path: Path) -> None:
+        try:
+            st = load_torch(path)
+        except Exception as e:
+            raise RuntimeError(f"{path} is unreadable ({e}); delete it to restart this method from scratch") from None
+        if st.get("digest") != self.state["digest"]:
+            raise RuntimeError(f"{path} was written by a run with a different configuration; use a new output "
+                               f"directory (hydra.run.dir=...) or delete {self.dir} to restart this method")
+        self.state = st
+        if st["mde_path"]:
+            self.mde = type(self.mde).load(self.dir / st["mde_path"])
+        log.info("%s: resuming after iteration %d", self.method, st["completed"])
+
+    def _save(self, iteration: int) -> None:
+        mde_name = None
+        if getattr(self.mde, "is_fitted", False):
+            mde_name = f"mde_iter{iteration:03d}.pt"
+            self.mde.save(self.dir / mde_name)
+        self.state["mde_path"] = mde_name
+        self.state["completed"] = iteration
+        save_torch(self.dir / "dataset.pt", {"X": self.state["X"], "y": self.state["y"],
+                                             "feature_names": ["x", "y", "theta", "v_ctrl", "v_tgt", "skill", "p1", "p2"]})
+        write_csv(self.dir / "results.csv", self.state["results"], RESULT_FIELDS)
+        write_csv(self.dir / "categories.csv", self.state["categories"], CATEGORY_FIELDS)
+        write_csv(self.dir / "calibration.csv", self.state["calibration"], CALIBRATION_FIELDS)
+        save_torch(self.dir / "state.pt", self.state)  # last: it marks the iteration as complete
+
+    # ------------------------------------------------------------------ the loop
+    def run(self) -> list[dict]:
+        ctx, exp = self.ctx, self.ctx.exp
+        its = range(self.state["completed"], exp.iterations)
+        bar = _tqdm(its, ctx.progress, desc=f"{self.method} seed {ctx.seed}", unit="it", initial=self.state["completed"],
+                    total=exp.iterations)
+        for it in bar:
+            row = self._iteration(it)
+            self._save(it + 1)
+            line = (f"[{self.method} seed {ctx.seed}] iteration {it + 1}/{exp.iterations}: "
+                    f"{row['n_trajectories']} trajectories, {row['n_transitions']} transitions, "
+                    f"test success {row['test_success']:.2f}, plans found {row['test_plan_found']:.2f}, "
+                    f"{row['iteration_seconds']:.0f} s")
+            _write(line, ctx.progress)
+            self.tracker.log({k: v for k, v in row.items() if isinstance(v, (int, float))}, step=it + 1)
+        return self.state["results"]
+
+    def _iteration(self, it: int) -> dict:
+        ctx, exp = self.ctx, self.ctx.exp
+        t_start = time.perf_counter()
+        beta = exp.beta(it)
+        problems = sample_problems(ctx.world, exp.trajectories_per_iteration, derive_seed(ctx.seed, "train", it),
+                                   world="target")
+        planner = Planner(ctx.dynamics, self.mde if self.mde.is_fitted else None, ctx.planner_cfg)
+        t_plan = t_sim = t_fit = 0.0
+        fallbacks = reached = 0
+        for c0 in range(0, len(problems), exp.refit_every):
+            chunk = problems[c0:c0 + exp.refit_every]
+            choices = []
+            for j, prob in enumerate(chunk):
+                k = c0 + j
+                tp = time.perf_counter()
+                choices.append(self._choose(planner, prob, it, k, beta))
+                t_plan += time.perf_counter() - tp
+            ts = time.perf_counter()
+            results = execute_padded(ctx, chunk, [c.actions for c in choices], exp.refit_every)
+            t_sim += time.perf_counter() - ts
+            for j, (prob, ch, r) in enumerate(zip(chunk, choices, results)):
+                fallbacks += ch.source == "fallback"
+                reached += bool(r.goal_reached)
+                self.state["categories"].append({
+                    "method": self.method, "seed": ctx.seed, "iteration": it + 1, "trajectory": self.state["n_trajectories"],
+                    "category": r.category, "source": ch.source, "n_candidates": ch.n_candidates, "steps": len(r.steps),
+                    "stuck": r.stuck, "final_spill": round(r.final_spill, 4), "goal": round(prob.goal, 4),
+                    "goal_reached": r.goal_reached})
+                self.state["n_trajectories"] += 1
+            s, a, s2 = _stack_steps(results)
+            if len(s):
+                y = label_transitions(ctx.dynamics, s, a, s2, ctx.world.distance_weights)
+                self.state["X"] = torch.cat([self.state["X"], torch.as_tensor(features(s, a))])
+                self.state["y"] = torch.cat([self.state["y"], torch.as_tensor(y)])
+            tf = time.perf_counter()
+            if len(self.state["y"]):
+                self.mde = self.make_mde().fit(self.state["X"], self.state["y"])
+                planner.mde = self.mde
+            t_fit += time.perf_counter() - tf
+        tt = time.perf_counter()
+        success, found = self._test(planner, it)
+        t_test = time.perf_counter() - tt
+        self._calibrate(it)
+        row = {"method": self.method, "seed": ctx.seed, "iteration": it + 1,
+               "n_trajectories": self.state["n_trajectories"], "n_transitions": int(len(self.state["y"])), "beta": beta,
+               "test_success": success, "test_plan_found": found, "train_goal_reached": reached / len(problems),
+               "fallbacks": fallbacks, "plan_seconds": round(t_plan, 3), "sim_seconds": round(t_sim, 3),
+               "fit_seconds": round(t_fit, 3), "test_seconds": round(t_test, 3),
+               "iteration_seconds": round(time.perf_counter() - t_start, 3)}
+        self.state["results"].append(row)
+        return row
+
+    def _choose(self, planner: Planner, prob: Problem, it: int, k: int, beta: float):
+        ctx, exp = self.ctx, self.ctx.exp
+        rng = np.random.default_rng(derive_seed(ctx.seed, self.method, "choose", it, k))
+
+        def random_actions() -> np.ndarray:
+            return self.sampler.sample(exp.random_actions_length, rng)
+
+        if self.method == "random_actions":
+            return choose(self.method, [], rng, random_actions)
+        cands = planner.plan_candidates(prob.start, prob.goal, n=exp.candidates, beta=beta, d_max=exp.d_max,
+                                        seed=derive_seed(ctx.seed, self.method, "plan", it, k))
+        trajs = list(cands.candidates)
+        if METHODS[self.method] is not None and not self.mde.is_fitted:
+            # no data yet: every candidate has the same prior score; pick one at random (seeded)
+            return choose("random_plan", trajs, rng, random_actions)
+        return choose(self.method, trajs, rng, random_actions, lambda c: self.make_acq(self.mde, c))
+
+    def _test(self, planner: Planner, it: int) -> tuple[float, float]:
+        ctx, exp = self.ctx, self.ctx.exp
+        plans = []
+        for k, prob in enumerate(ctx.test_problems):
+            res = planner.plan(prob.start, prob.goal, beta=exp.beta_test, d_max=exp.d_max,
+                               seed=derive_seed(ctx.seed, "test-plan", it, k))
+            plans.append(res.trajectory if res.found else None)
+        idx = [k for k, p in enumerate(plans) if p is not None]
+        success = 0
+        if idx:
+            results = execute_padded(ctx, [ctx.test_problems[k] for k in idx], [plans[k].actions for k in idx],
+                                     len(ctx.test_problems))
+            success = sum(bool(r.goal_reached) for r in results)
+        n = len(ctx.test_problems)
+        return success / n, len(idx) / n
+
+    def _calibrate(self, it: int) -> None:
+        from mde.calibration import calibration_report
+
+        X, y = self.ctx.calibration["X"], self.ctx.calibration["y"]
+        if not len(y):
+            return
+        rep = calibration_report(self.mde, X, y)
+        cov = {float(k): float(v) for k, v in rep["coverage"].items()}
+        self.state["calibration"].append({"method": self.method, "seed": self.ctx.seed, "iteration": it + 1,
+                                          "n": int(rep["n"]), "coverage50": cov.get(0.5), "coverage80": cov.get(0.8),
+                                          "coverage95": cov.get(0.95), "nll": float(rep["nll"])})
+
+
+def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):
+    """Build the configured acquisition for an MDE and the method's c (passed only if accepted)."""
+    from hydra.utils import get_class
+
+    cfg = dict(acq_cfg)
+    target = cfg.pop("_target_")
+    cls = get_class(target)
+    params = inspect.signature(cls.__init__).parameters
+
+    def make(mde: Any, c: float | None):
+        kw = dict(cfg)
+        if "c" in params and c is not None:
+            kw["c"] = c
+        if "d_max" in params and "d_max" not in kw:
+            kw["d_max"] = exp.d_max
+        model = getattr(mde, "model", mde)
+        return cls(model=model, **kw)
+
+    return make
+
+
+def _tqdm(it, enabled: bool, **kw):
+    if not enabled:
+        return it
+    from tqdm.auto import tqdm
+
+    return tqdm(it, **kw)
+
+
+def _write(line: str, progress: bool) -> None:
+    if progress:
+        from tqdm.auto import tqdm
+
+        tqdm.write(line)
+    else:
+        print(line, flush=True)

@@ -1,0 +1,114 @@
+"""The experiment runner (the README's main job).
+
+    python -m active.run                                    # experiment=quick: active vs random, seed 0
+    python -m active.run experiment=paper method=active_balanced seed=2
+    python -m active.run -m method=active_cautious,active_balanced,random_plan seed=0,1,2,3
+
+Writes, under the run directory (``outputs/<experiment>/<method>/seed<seed>`` by default; running the
+same command again resumes it): the resolved config, per method ``results.csv``, ``categories.csv``,
+``calibration.csv``, ``dataset.pt``, MDE checkpoints and ``state.pt``, and the figures of
+``active.report`` in ``report/``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import warnings
+from pathlib import Path
+from typing import Any, Mapping
+
+log = logging.getLogger("active.run")
+
+
+def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
+    """Run (or resume) every method of ``cfg`` into ``out_dir``; returns the report summary."""
+    import torch
+    from hydra.utils import instantiate
+
+    import dynamics
+    from planner import ActionSampler
+    from sim.execute import PouringExecutor
+    from sim.problems import sample_problems
+    from sim.world import WorldConfig
+
+    from .experiment import ExperimentConfig
+    from .io import write_json
+    from .loop import (Context, MethodRun, acquisition_factory, build_planner_config, derive_seed,
+                       make_calibration_set)
+    from .report import report
+    from .tracking import Tracker
+
+    t0 = time.perf_counter()
+    cfg = dict(cfg)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    seed = int(cfg["seed"])
+    progress = bool(cfg.get("progress", True))
+    # ---- validate everything before any compute
+    exp = ExperimentConfig.from_mapping(cfg["experiment"], method=str(cfg.get("method", "all")))
+    world = WorldConfig.from_mapping(cfg["world"])
+    planner_cfg = build_planner_config(world, cfg["planner"], exp)
+    make_acq = acquisition_factory(cfg["acquisition"], exp)
+    mde_cfg = dict(cfg["mde"])
+
+    def make_mde():
+        return instantiate(mde_cfg, _convert_="all")
+
+    make_mde()  # validates the MDE config
+    wandb_cfg = dict(cfg.get("wandb", {}))
+    if wandb_cfg.get("mode", "offline") not in ("offline", "online", "disabled"):
+        raise ValueError(f"wandb.mode = {wandb_cfg.get('mode')!r}: allowed one of ('offline', 'online', 'disabled')")
+    write_json(out / "config.json", cfg)
+    torch.manual_seed(seed)
+
+    # ---- shared pieces: dynamics model (cached by config hash), simulator, problems, held-out data
+    log.info("dynamics model: loading from cache or training (source world only)")
+    dyn = dynamics.load_or_train(cfg["dynamics"], progress=progress)
+    executor = PouringExecutor(world)
+    test_problems = sample_problems(world, exp.test_problems, derive_seed(seed, "test"), world="target")
+    cal_path = out / "calibration_set.pt"
+    from .io import load_torch, save_torch
+
+    if cal_path.exists():
+        calibration = load_torch(cal_path)
+    else:
+        calibration = make_calibration_set(world, dyn, executor, ActionSampler(planner_cfg),
+                                           exp.calibration_trajectories, exp.random_actions_length, seed)
+        save_torch(cal_path, calibration)
+    ctx = Context(cfg=cfg, exp=exp, world=world, planner_cfg=planner_cfg, dynamics=dyn, executor=executor,
+                  test_problems=test_problems, calibration=calibration, out=out, seed=seed, progress=progress)
+    for method in exp.methods:
+        tracker = Tracker(wandb_cfg.get("mode", "offline"), wandb_cfg.get("project", "active-mde"),
+                          f"{exp.name}-{method}-seed{seed}", cfg, out, entity=wandb_cfg.get("entity"),
+                          group=f"{exp.name}-seed{seed}")
+        MethodRun(ctx, method, make_mde, make_acq, tracker).run()
+        report([out], out / "report")
+        tracker.log_images({"learning_curves": out / "report" / "learning_curves.png",
+                            "trajectory_types": out / "report" / "trajectory_types.png"})
+        tracker.finish()
+    executor.close()
+    made = report([out], out / "report")
+    print(made["table"])
+    print(f"results and figures in {out} ({time.perf_counter() - t0:.0f} s)")
+    return made
+
+
+def _hydra_main() -> None:
+    import hydra
+    from hydra.core.hydra_config import HydraConfig
+    from omegaconf import DictConfig, OmegaConf
+
+    config_dir = str(Path(__file__).resolve().parents[1] / "configs")
+
+    @hydra.main(config_path=config_dir, config_name="config", version_base="1.3")
+    def main(cfg: DictConfig) -> None:
+        warnings.filterwarnings("ignore", category=DeprecationWarning)
+        plain = OmegaConf.to_container(cfg, resolve=True)
+        run_experiment(plain, HydraConfig.get().runtime.output_dir)
+
+    main()
+
+
+if __name__ == "__main__":
+    _hydra_main()
