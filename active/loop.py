@@ -306,9 +306,21 @@ def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):
     """Build the configured acquisition for an MDE and the method's c (passed only if accepted)."""
     from hydra.utils import get_class
 
+    from .acquisition import _check_gamma
+
     cfg = dict(acq_cfg)
+    if "_target_" not in cfg:
+        raise ValueError("acquisition._target_ is missing: e.g. active.acquisition.DiscountedMaxUCB")
     target = cfg.pop("_target_")
-    cls = get_class(target)
+    try:
+        cls = get_class(target)
+    except Exception as e:
+        from .acquisition import ACQUISITIONS
+
+        raise ValueError(f"acquisition._target_ = {target!r} cannot be imported ({e}); built in: "
+                         f"{sorted(c.__module__ + '.' + c.__name__ for c in ACQUISITIONS.values())}") from None
+    if "gamma" in cfg:
+        _check_gamma(cfg["gamma"])
     params = inspect.signature(cls.__init__).parameters
 
     def make(mde: Any, c: float | None):

@@ -94,14 +94,27 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     return made
 
 
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+
+
+def compose_config(overrides: list[str] | None = None) -> dict:
+    """The resolved config of ``python -m active.run <overrides>`` as a plain dict (no Hydra run dir)."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=list(overrides or []))
+    plain = OmegaConf.to_container(cfg, resolve=False)
+    plain.pop("hydra", None)
+    return OmegaConf.to_container(OmegaConf.create(plain), resolve=True)
+
+
 def _hydra_main() -> None:
     import hydra
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import DictConfig, OmegaConf
 
-    config_dir = str(Path(__file__).resolve().parents[1] / "configs")
-
-    @hydra.main(config_path=config_dir, config_name="config", version_base="1.3")
+    @hydra.main(config_path=str(CONFIG_DIR), config_name="config", version_base="1.3")
     def main(cfg: DictConfig) -> None:
         warnings.filterwarnings("ignore", category=DeprecationWarning)
         plain = OmegaConf.to_container(cfg, resolve=True)
