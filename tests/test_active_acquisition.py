@@ -79,3 +79,20 @@ def test_gamma_outside_range_is_rejected(gamma):
 def test_straddle_needs_positive_threshold():
     with pytest.raises(ValueError, match="d_max"):
         TrajectoryStraddle(KnownPosterior(), d_max=0.0)
+
+
+def test_user_acquisition_plugs_in_by_target(tmp_path, monkeypatch):
+    """The README's example: a user's class named by `acquisition._target_`, no edit of our code."""
+    from active.experiment import ExperimentConfig
+    from active.loop import acquisition_factory
+
+    (tmp_path / "my_acq.py").write_text(
+        "from active.acquisition import TrajectoryAcquisition\n"
+        "class WorstStepStd(TrajectoryAcquisition):\n"
+        "    minimise = True\n"
+        "    def step_score(self, mean, std):\n"
+        "        return std\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    make = acquisition_factory({"_target_": "my_acq.WorstStepStd", "gamma": 1.0}, ExperimentConfig())
+    acq = make(KnownPosterior(), 0.1)
+    assert acq(torch.cat([A, B])).tolist() == pytest.approx([-0.05, -0.1])  # -max_t sigma_t
