@@ -1,0 +1,26 @@
+"""Model deviation estimator (MDE): a heteroscedastic Gaussian process on BoTorch / GPyTorch.
+
+Predicts a Gaussian over the deviation d(f_hat(s, a), s') of an inaccurate dynamics model from
+features X = (s, a). Knows nothing of the simulator or the planner: tensors in, tensors out.
+
+    from mde import HeteroscedasticGPMDE
+    mde = HeteroscedasticGPMDE().fit(X, y)       # X: n x d, y: n deviations >= 0
+    mean, std = mde.predict(X_query)             # label units, predictive std (latent + noise)
+    post = mde.model.posterior(X_bqd)            # BoTorch posterior, label units, latent only
+"""
+
+from typing import Any
+
+from .config import MDEConfig
+from .model import HeteroscedasticGPMDE
+
+__all__ = ["HeteroscedasticGPMDE", "MDEConfig", "calibration_report"]
+
+
+def __getattr__(name: str) -> Any:
+    # Lazy, so that ``python -m mde.calibration`` does not import the module twice.
+    if name == "calibration_report":
+        from .calibration import calibration_report
+
+        return calibration_report
+    raise AttributeError(f"module 'mde' has no attribute {name!r}")
