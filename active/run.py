@@ -13,10 +13,15 @@ same command again resumes it): the resolved config, per method ``results.csv``,
 from __future__ import annotations
 
 import logging
+import os
 import time
 import warnings
 from pathlib import Path
 from typing import Any, Mapping
+
+# OpenMP threads that spin while waiting stall each other (and the simulator's threads) on small
+# machines shared with other jobs; passive waiting costs nothing measurable on an idle machine.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 log = logging.getLogger("active.run")
 
