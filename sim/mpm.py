@@ -5,8 +5,8 @@ B-splines, pressure p = K (1 - J) with bulk modulus K = rho c^2, explicit subste
 acoustic CFL condition (``SimConfig.dt_max``).
 
 Batching: B independent environments share one set of fields with a leading environment axis and
-one fused kernel launch per substep (clear grid, particle-to-grid, grid update, grid-to-particle,
-body update run as consecutive offloaded loops). On the CPU, particle-to-grid is env-serial (each
+one fused kernel launch per substep (clear grid, body update + particle-to-grid, grid update,
+grid-to-particle run as consecutive offloaded loops). On the CPU, particle-to-grid is env-serial (each
 environment scatters in a fixed particle order, in parallel across environments), so runs are bit
 reproducible and one environment's motion cannot change another's numbers; on the GPU it scatters
 with atomics over all particles.
@@ -444,28 +444,38 @@ class MPMSolver:
                     for k in range(self.box_cur[b][2], self.box_cur_hi[b][2] + 1):
                         fn(ti.Vector([b, i, j, k]))
 
+    @ti.func
+    def _begin_env(self, b):
+        self.box_cur[b] = self.box_next[b]
+        self.box_cur_hi[b] = self.box_next_hi[b]
+        self.box_next[b] = ti.Vector([self.res[d] for d in ti.static(range(self.dim))])
+        self.box_next_hi[b] = ti.Vector.zero(ti.i32, self.dim)
+        for k in range(self.NB):
+            self.body_pos[b, k] += self.cfg.dt * self.body_vel[b, k]
+            self.body_rot[b, k] += self.cfg.dt * self.body_omega[b, k]
+            self.body_cs[b, k] = ti.Vector([ti.cos(self.body_rot[b, k]), ti.sin(self.body_rot[b, k])])
+
     @ti.kernel
     def _substep(self):
         dim = ti.static(self.dim)
         dx = ti.static(self.cfg.dx)
         dt = ti.static(self.cfg.dt)
-        # 1. clear the nodes the last particle-to-grid wrote (everything else is zero already), then
-        #    make the box of the particles' current stencils the active box. Grid loops run over
-        #    rows (b, i) and only the active part of each row, so empty tank costs nothing.
+        # 1. clear the nodes the last particle-to-grid wrote (everything else is zero already). Grid
+        #    loops run over rows (b, i) and only the active part of each row: empty tank costs nothing.
         for b, i in ti.ndrange(self.B, self.res[0]):
             self._for_active_nodes(b, i, self._clear_node)
-        for b in range(self.B):
-            self.box_cur[b] = self.box_next[b]
-            self.box_cur_hi[b] = self.box_next_hi[b]
-            self.box_next[b] = ti.Vector([self.res[d] for d in ti.static(range(dim))])
-            self.box_next_hi[b] = ti.Vector.zero(ti.i32, dim)
-        # 2. particle to grid
+        # 2. per environment: make the box of the particles' current stencils the active box, move
+        #    the kinematic bodies by their prescribed velocities (so grid update and G2P see this
+        #    substep's collider poses), then particle to grid. One task per environment on the CPU.
         if ti.static(self.serial_p2g):
             ti.loop_config(block_dim=1)  # one environment per task, so environments spread over threads
             for b in range(self.B):
+                self._begin_env(b)
                 for p in range(self.n_part[b]):
                     self._p2g(b, p)
         else:
+            for b in range(self.B):
+                self._begin_env(b)
             for b, p in ti.ndrange(self.B, self.N):
                 if p < self.n_part[b]:
                     self._p2g(b, p)
@@ -522,11 +532,6 @@ class MPMSolver:
                 self.v[b, p] = new_v
                 self.C[b, p] = new_C
                 self.J[b, p] = J
-        # 5. kinematic bodies follow their prescribed velocities
-        for b, k in ti.ndrange(self.B, self.NB):
-            self.body_pos[b, k] += dt * self.body_vel[b, k]
-            self.body_rot[b, k] += dt * self.body_omega[b, k]
-            self.body_cs[b, k] = ti.Vector([ti.cos(self.body_rot[b, k]), ti.sin(self.body_rot[b, k])])
 
     @ti.kernel
     def _count_regions(self, bodies: ti.types.ndarray(), lo: ti.types.ndarray(), hi: ti.types.ndarray(),
