@@ -1,0 +1,37 @@
+"""Learned dynamics model f_hat(s, a) of the pouring task, trained on the source world only.
+
+The paper's inaccurate model: an MLP per skill trained on cheap source-world (no plant) simulator
+data, used by the planner in the target world, where it is wrong near the plant.
+
+    from dynamics import load_or_train
+    model = load_or_train(cfg.dynamics, world_cfg=cfg.world)  # cached by config hash; trains if missing
+    s_next = model.predict(states, actions)                # torch [n, 5], [n, 3] -> [n, 5] float32
+    s1 = model.predict_one(s, a)                           # numpy fast path for one transition
+
+Commands: ``python -m dynamics.train`` (Hydra, ``configs/dynamics``), ``python -m dynamics.evaluate
+--out DIR`` and ``python -m dynamics.bench``. Depends on ``sim`` (data generation) only.
+"""
+
+from .config import (DataConfig, DynamicsConfig, DynamicsError, EvalConfig, ModelConfig, TrainConfig, data_hash,
+                     model_hash)
+from .data import Transitions, generate_source_dataset, generate_transitions
+from .model import LearnedDynamics
+
+# imported lazily so that `python -m dynamics.train` does not find its own module pre-imported
+_LAZY = {"cache_paths": "train", "error_table": "train", "fit": "train", "load_or_generate_dataset": "train",
+         "load_or_train": "train"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module 'dynamics' has no attribute {name!r}")
+
+
+__all__ = [
+    "DataConfig", "DynamicsConfig", "DynamicsError", "EvalConfig", "LearnedDynamics", "ModelConfig", "TrainConfig",
+    "Transitions", "cache_paths", "data_hash", "error_table", "fit", "generate_source_dataset",
+    "generate_transitions", "load_or_generate_dataset", "load_or_train", "model_hash",
+]

@@ -1,0 +1,324 @@
+"""Train the dynamics model on source-world data, with a cache keyed by config hashes.
+
+    python -m dynamics.train                                   # default config (~16 batches of 32)
+    python -m dynamics.train --config-name quick               # 4 batches: the main job's size
+    python -m dynamics.train data.n_batches=4 train.max_epochs=50 cache_root=/tmp/dyn
+
+Layout under ``cache_root`` (default ``.cache/dynamics``, relative to the working directory):
+``data-<data_hash>/dataset.pt`` (+ ``config.yaml``; ``parts/`` holds finished batches while
+generating, so an interrupted run resumes) and ``model-<model_hash>/model.pt`` (+ ``config.yaml``,
+``metrics.json``). The data hash covers only data-generation fields and the world config's
+content, the model hash the data hash plus model and training fields (see
+:mod:`dynamics.config`), so changing e.g. ``train.lr`` retrains on the cached data. Concurrent
+runs (Hydra multirun) wait on a file lock instead of generating the same data twice.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import fcntl
+import json
+import logging
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterator, Mapping
+
+import numpy as np
+import torch
+
+from .config import (TRAIN_COMMAND, DataConfig, DynamicsConfig, DynamicsError, ModelConfig, TrainConfig,
+                     data_hash, model_hash)
+from .data import MOVE, POUR, Transitions, load_world
+from .model import SKILLS, LearnedDynamics
+
+log = logging.getLogger(__name__)
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs" / "dynamics"
+STATE_NAMES = ("x", "y", "theta", "v_ctrl", "v_tgt")
+
+Generator = Callable[..., Transitions]
+
+
+# ---------------------------------------------------------------------------------- training
+def split_by_trajectory(traj: np.ndarray, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Train / validation row indices with whole trajectories on one side (no leakage between steps)."""
+    ids = np.unique(traj)
+    if len(ids) < 2:
+        idx = np.arange(len(traj))
+        return idx, idx[:0]
+    perm = np.random.default_rng(seed).permutation(ids)
+    n_val = min(len(ids) - 1, max(1, int(round(val_fraction * len(ids)))))
+    val = np.isin(traj, perm[:n_val])
+    return np.flatnonzero(~val), np.flatnonzero(val)
+
+
+@contextlib.contextmanager
+def torch_threads(n: int) -> Iterator[None]:
+    prev = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(prev)
+
+
+def fit(ds: Transitions, model_cfg: ModelConfig | None = None, train_cfg: TrainConfig | None = None,
+        progress: bool = False, world_cfg: Any = None) -> LearnedDynamics:
+    """Train a fresh :class:`LearnedDynamics` on ``ds``; seeded and bit-reproducible on CPU.
+
+    ``world_cfg`` (``sim.world.WorldConfig`` or mapping; default: the default world) gives the
+    controlled cup's geometry (pour inputs) and the distance weights. Loss: ``train_cfg.loss``
+    (default: the state distance d with the world's weights, so training minimises the MDE's
+    label); early stopping on the validation loss restores the best epoch.
+    ``model.info["training"]`` gets the losses, epochs, wall time and validation errors.
+    """
+    from tqdm.auto import tqdm
+
+    wcfg = load_world(DataConfig(), world_cfg)
+    cup = wcfg.controlled_cup
+    w = {"pose": 1.0, "volume": 1.0, **dict(wcfg.distance_weights)}
+    mc, tc = model_cfg or ModelConfig(), train_cfg or TrainConfig()
+    ds.validate()
+    if len(ds) < 2:
+        raise DynamicsError(f"cannot train the dynamics model on {len(ds)} transition(s); generate more data "
+                            f"(data.n_batches) with `{TRAIN_COMMAND}`")
+    t0 = time.perf_counter()
+    tr_idx, va_idx = split_by_trajectory(ds.traj, tc.val_fraction, tc.seed)
+    skill = ds.skill()
+    with torch_threads(tc.threads):
+        torch.manual_seed(tc.seed)
+        model = LearnedDynamics(mc)
+        model.set_cup_geometry(cup.inner_width, cup.inner_height, cup.wall)
+        missing = []
+        for k in (MOVE, POUR):
+            rows = tr_idx[skill[tr_idx] == k]
+            if len(rows) == 0:
+                missing.append(SKILLS[k])
+                continue
+            model.nets[k].set_statistics(ds.s[rows], ds.a[rows], ds.s_next[rows], mc)
+        if missing:
+            log.warning("no training transitions of skill(s) %s: their network stays untrained", missing)
+        S, A, SN = (torch.from_numpy(np.ascontiguousarray(x)) for x in (ds.s, ds.a, ds.s_next))
+        tr, va = torch.from_numpy(tr_idx), torch.from_numpy(va_idx)
+        opt = torch.optim.Adam(model.parameters(), lr=tc.lr, weight_decay=tc.weight_decay)
+        gen = torch.Generator().manual_seed(tc.seed)
+
+        def loss_of(idx: torch.Tensor) -> torch.Tensor:
+            e = model(S[idx], A[idx]) - SN[idx]
+            if tc.loss == "scaled_mse":
+                return ((e / model.output_scale(A[idx])) ** 2).sum(1).mean()
+            pose = torch.sqrt((e[:, :3] ** 2).sum(1) + 1e-10)  # eps: finite gradient at zero error
+            return (w["pose"] * pose + w["volume"] * (e[:, 3].abs() + e[:, 4].abs())).mean()
+
+        best, best_state, best_epoch, stale = float("inf"), copy.deepcopy(model.state_dict()), -1, 0
+        history = []
+        bar = tqdm(range(tc.max_epochs), desc="train dynamics", unit="epoch", disable=not progress)
+        for epoch in bar:
+            model.train()
+            perm = tr[torch.randperm(len(tr), generator=gen)]
+            total = 0.0
+            for i in range(0, len(perm), tc.batch_size):
+                idx = perm[i:i + tc.batch_size]
+                loss = loss_of(idx)
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+                total += float(loss.detach()) * len(idx)
+            model.eval()
+            with torch.no_grad():
+                val = float(loss_of(va)) if len(va) else total / len(tr)
+            history.append((total / len(tr), val))
+            if val < best:
+                best, best_state, best_epoch, stale = val, copy.deepcopy(model.state_dict()), epoch, 0
+            else:
+                stale += 1
+            bar.set_postfix(train=f"{total / len(tr):.4f}", val=f"{val:.4f}", best=best_epoch)
+            if stale >= tc.patience:
+                break
+        bar.close()
+        model.load_state_dict(best_state)
+        model.eval()
+    metrics = {
+        "epochs_run": len(history), "best_epoch": best_epoch, "best_val_loss": best,
+        "final_train_loss": history[-1][0], "n_train": int(len(tr_idx)), "n_val": int(len(va_idx)),
+        "untrained_skills": missing, "wall_seconds": time.perf_counter() - t0,
+        "val_errors": error_table(model, ds.subset(va_idx), w) if len(va_idx) else {},
+        "history": [[round(a, 6), round(b, 6)] for a, b in history],
+    }
+    model.info["training"] = metrics
+    return model
+
+
+def error_table(model: LearnedDynamics, ds: Transitions, distance_weights: Mapping[str, float] | None = None
+                ) -> dict[str, Any]:
+    """Mean absolute error per state component and mean state distance d(f_hat(s, a), s'), per skill."""
+    if len(ds) == 0:
+        return {"n": 0}
+    pred = model.predict_np(ds.s, ds.a)
+    return _errors(pred, ds.s_next.astype(float), ds.skill(), distance_weights)
+
+
+def _errors(pred: np.ndarray, true: np.ndarray, skill: np.ndarray,
+            distance_weights: Mapping[str, float] | None = None) -> dict[str, Any]:
+    w = {"pose": 1.0, "volume": 1.0, **(distance_weights or {})}
+    err = np.abs(pred - true)
+    d = w["pose"] * np.linalg.norm(pred[:, :3] - true[:, :3], axis=1) + w["volume"] * (err[:, 3] + err[:, 4])
+    out: dict[str, Any] = {}
+    for name, m in (("all", np.ones(len(err), bool)), ("move", skill == MOVE), ("pour", skill == POUR)):
+        if m.any():
+            out[name] = {"n": int(m.sum()), **{f"mae_{c}": float(err[m, j].mean()) for j, c in enumerate(STATE_NAMES)},
+                         "mean_d": float(d[m].mean()), "median_d": float(np.median(d[m])),
+                         "p90_d": float(np.quantile(d[m], 0.9)), "frac_d_gt_0.07": float((d[m] > 0.07).mean())}
+        else:
+            out[name] = {"n": 0}
+    return out
+
+
+# ---------------------------------------------------------------------------------- cache
+@contextlib.contextmanager
+def _locked(folder: Path) -> Iterator[None]:
+    """Exclusive lock on ``folder/.lock`` so that parallel runs do not generate the same thing twice."""
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / ".lock", "w") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def _as_config(cfg: DynamicsConfig | Mapping[str, Any] | None) -> DynamicsConfig:
+    return cfg if isinstance(cfg, DynamicsConfig) else DynamicsConfig.from_dict(cfg)
+
+
+def cache_paths(cfg: DynamicsConfig | Mapping[str, Any] | None = None,
+                cache_root: str | Path | None = None, world_cfg: Any = None) -> dict[str, Any]:
+    """Where the dataset and the checkpoint for ``cfg`` live (whether or not they exist yet)."""
+    c = _as_config(cfg)
+    root = Path(cache_root if cache_root is not None else c.cache_root)
+    dh = data_hash(c, world_cfg)
+    mh = model_hash(c, dh)
+    return {"root": root, "data_hash": dh, "model_hash": mh,
+            "dataset": root / f"data-{dh}" / "dataset.pt", "checkpoint": root / f"model-{mh}" / "model.pt"}
+
+
+def _write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+def load_or_generate_dataset(cfg: DynamicsConfig | Mapping[str, Any] | None = None,
+                             cache_root: str | Path | None = None, generator: Generator | None = None,
+                             progress: bool | None = None, world_cfg: Any = None) -> Transitions:
+    """The source-world training data for ``cfg``: loaded from the cache, generated only when missing.
+
+    ``generator(cfg, shard_dir=..., progress=..., world_cfg=...) -> Transitions`` defaults to
+    :func:`dynamics.data.generate_source_dataset` (the simulator).
+    """
+    import yaml
+
+    from . import data as data_mod
+
+    c = _as_config(cfg)
+    p = cache_paths(c, cache_root, world_cfg)
+    path, dh = p["dataset"], p["data_hash"]
+    if not path.is_file():
+        with _locked(path.parent):
+            if not path.is_file():
+                gen = generator or data_mod.generate_source_dataset
+                shard_dir = path.parent / "parts"
+                ds = gen(c, shard_dir=shard_dir, progress=c.progress if progress is None else progress,
+                         world_cfg=world_cfg)
+                if len(ds) == 0:
+                    raise DynamicsError("the data generator returned no transitions (all environments unstable?); "
+                                        "check the world config or change data.seed")
+                ds.meta = {**ds.meta, "data_hash": dh, "config": c.to_dict()}
+                ds.save(path)
+                _write_text(path.parent / "config.yaml", yaml.safe_dump({"data": c.to_dict()["data"], "data_hash": dh}))
+                shutil.rmtree(shard_dir, ignore_errors=True)
+                log.info("wrote %s (%d transitions)", path, len(ds))
+    ds = Transitions.load(path, expected_hash=dh)
+    if ds.meta.get("world", "source") != "source":
+        raise DynamicsError(f"{path} holds {ds.meta.get('world')}-world data; the dynamics model is trained on the "
+                            f"source world only. Delete it and regenerate with `{TRAIN_COMMAND}`")
+    return ds
+
+
+def load_or_train(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_root: str | Path | None = None,
+                  *, world_cfg: Any = None, generator: Generator | None = None,
+                  progress: bool | None = None) -> LearnedDynamics:
+    """The trained model for ``cfg`` (a DynamicsConfig or a plain / OmegaConf mapping of its fields).
+
+    Loads the cached checkpoint if its config hash matches; otherwise trains (and, if needed,
+    generates the dataset first). ``cache_root`` overrides ``cfg.cache_root``; ``world_cfg`` (the
+    experiment's world config: WorldConfig or mapping) overrides the ``data.world`` file and is
+    part of both hashes.
+    """
+    import yaml
+
+    c = _as_config(cfg)
+    p = cache_paths(c, cache_root, world_cfg)
+    ckpt, mh = p["checkpoint"], p["model_hash"]
+    if not ckpt.is_file():
+        with _locked(ckpt.parent):
+            if not ckpt.is_file():
+                ds = load_or_generate_dataset(c, p["root"], generator, progress, world_cfg)
+                model = fit(ds, c.model, c.train, progress=c.progress if progress is None else progress,
+                            world_cfg=load_world(c.data, world_cfg))
+                model.info.update({"model_hash": mh, "data_hash": p["data_hash"], "config": c.to_dict(),
+                                   "dataset": {"path": str(p["dataset"]), **ds.summary(),
+                                               "generation_wall_seconds": ds.meta.get("wall_seconds")}})
+                model.save(ckpt)
+                _write_text(ckpt.parent / "config.yaml", yaml.safe_dump({**c.to_dict(), "model_hash": mh,
+                                                                         "data_hash": p["data_hash"]}))
+                metrics = {k: v for k, v in model.info["training"].items() if k != "history"}
+                _write_text(ckpt.parent / "metrics.json", json.dumps(metrics, indent=1))
+                log.info("wrote %s", ckpt)
+    return LearnedDynamics.load(ckpt, expected_hash=mh)
+
+
+# ---------------------------------------------------------------------------------- CLI
+def format_errors(table: Mapping[str, Any], title: str = "") -> str:
+    cols = ["n", *[f"mae_{c}" for c in STATE_NAMES], "mean_d", "p90_d", "frac_d_gt_0.07"]
+    lines = [title] if title else []
+    lines.append(f"{'':6s}" + "".join(f"{c:>15s}" for c in cols))
+    for name, row in table.items():
+        if not isinstance(row, Mapping) or not row.get("n"):
+            continue
+        lines.append(f"{name:6s}" + "".join(f"{row[c]:>15d}" if c == "n" else f"{row[c]:>15.4g}" for c in cols))
+    return "\n".join(lines)
+
+
+def _run(cfg: Any) -> LearnedDynamics:
+    logging.basicConfig(level=logging.INFO)
+    c = DynamicsConfig.from_dict(cfg)
+    p = cache_paths(c)
+    t0 = time.perf_counter()
+    had_data, had_model = p["dataset"].is_file(), p["checkpoint"].is_file()
+    model = load_or_train(c)
+    info = model.info
+    tr = info["training"]
+    print(f"dataset    {p['dataset']} ({'cached' if had_data else 'generated'}): {info['dataset']}")
+    if info["dataset"].get("generation_wall_seconds") is not None:
+        print(f"           generation wall time {info['dataset']['generation_wall_seconds']:.1f} s")
+    print(f"checkpoint {p['checkpoint']} ({'cached' if had_model else 'trained'}): best epoch {tr['best_epoch']} "
+          f"of {tr['epochs_run']}, val loss {tr['best_val_loss']:.4f}, training wall time {tr['wall_seconds']:.1f} s")
+    print(format_errors(tr["val_errors"], "validation split (source world), mean absolute errors:"))
+    print(f"total wall time of this command {time.perf_counter() - t0:.1f} s")
+    return model
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Hydra entry point (``configs/dynamics``); any field can be overridden as ``key=value``."""
+    import hydra
+
+    if argv is not None:
+        sys.argv = [sys.argv[0], *argv]
+    hydra.main(config_path=str(CONFIG_DIR), config_name="default", version_base=None)(_run)()
+
+
+if __name__ == "__main__":
+    main()

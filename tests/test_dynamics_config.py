@@ -1,0 +1,91 @@
+"""Dynamics config: YAML mirror, validation messages, and which fields each cache hash covers."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from dynamics import DynamicsConfig, DynamicsError, data_hash, model_hash
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "dynamics"
+
+
+def test_yaml_mirrors_dataclass_defaults():
+    d = yaml.safe_load((CONFIGS / "default.yaml").read_text())
+    assert d == DynamicsConfig().to_dict()
+    assert DynamicsConfig.from_dict(d) == DynamicsConfig()
+
+
+def test_hydra_compose_with_overrides_and_quick_preset():
+    from dynamics.evaluate import compose_config
+
+    c = compose_config("default", ["data.n_batches=4", "train.max_epochs=50", "model.hidden=[32,32]"])
+    assert (c.data.n_batches, c.train.max_epochs, c.model.hidden) == (4, 50, (32, 32))
+    q = compose_config("quick")
+    assert q.data.n_batches == 4 and q.replace(data=DynamicsConfig().data) == DynamicsConfig()
+
+
+@pytest.mark.parametrize("d, match", [
+    ({"bogus": 1}, r"unknown dynamics config key\(s\) \['bogus'\]"),
+    ({"data": {"n_batchez": 3}}, r"unknown dynamics.data key\(s\) \['n_batchez'\]"),
+    ({"data": {"p_pour": 1.5}}, r"data.p_pour = 1.5: allowed a probability in \[0, 1\]"),
+    ({"data": {"min_actions": 5, "max_actions": 3}}, r"data.max_actions = 3: allowed 5..6"),
+    ({"data": {"near_target_y": [0.3, 0.1]}}, r"data.near_target_y = \[0.3, 0.1\]: allowed a finite range"),
+    ({"model": {"activation": "gelu"}}, r"model.activation = 'gelu': allowed one of"),
+    ({"model": {"hidden": []}}, r"model.hidden = \[\]"),
+    ({"train": {"val_fraction": 1.0}}, r"train.val_fraction = 1.0: allowed \(0, 1\)"),
+    ({"train": {"lr": 0}}, r"train.lr = 0: allowed > 0"),
+    ({"train": {"loss": "l2"}}, r"train.loss = 'l2': allowed one of \('distance', 'scaled_mse'\)"),
+])
+def test_bad_values_name_field_and_range(d, match):
+    with pytest.raises(DynamicsError, match=match):
+        DynamicsConfig.from_dict(d)
+
+
+def test_hash_scopes():
+    base = DynamicsConfig()
+    dh, mh = data_hash(base), model_hash(base)
+    # data fields change both hashes
+    c = DynamicsConfig.from_dict({"data": {"n_batches": 3}})
+    assert data_hash(c) != dh and model_hash(c) != mh
+    # model / training fields change only the checkpoint hash
+    for d in ({"train": {"lr": 1e-3}}, {"model": {"hidden": [64]}}):
+        c = DynamicsConfig.from_dict(d)
+        assert data_hash(c) == dh and model_hash(c) != mh
+    # evaluation, cache location and progress bars change neither
+    c = DynamicsConfig.from_dict({"eval": {"seed": 5}, "cache_root": "/elsewhere", "progress": False})
+    assert data_hash(c) == dh and model_hash(c) == mh
+
+
+def test_world_content_is_part_of_the_data_hash(tmp_path):
+    from sim.world import DEFAULT_CONFIG
+
+    w = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    same = tmp_path / "same.yaml"
+    same.write_text(yaml.safe_dump(w))
+    w["target_cup"]["x"] = 0.25
+    moved = tmp_path / "moved.yaml"
+    moved.write_text(yaml.safe_dump(w))
+    base = data_hash(DynamicsConfig())
+    assert data_hash(DynamicsConfig.from_dict({"data": {"world": str(same)}})) == base
+    assert data_hash(DynamicsConfig.from_dict({"data": {"world": str(moved)}})) != base
+    with pytest.raises(DynamicsError, match="no such world config file"):
+        data_hash(DynamicsConfig.from_dict({"data": {"world": str(tmp_path / "missing.yaml")}}))
+
+
+def test_world_given_as_object_or_mapping_overrides_the_file():
+    """The main job passes its own (possibly overridden) world config; equal worlds hash equally."""
+    from omegaconf import OmegaConf
+
+    from sim.world import DEFAULT_CONFIG, WorldConfig
+
+    c = DynamicsConfig()
+    w = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    assert data_hash(c) == data_hash(c, WorldConfig.load()) == data_hash(c, OmegaConf.create(w))
+    w["skills"]["move"]["peak_speed"] = 0.2
+    assert data_hash(c, w) != data_hash(c) and model_hash(c, world_cfg=w) != model_hash(c)
+    w["skills"]["max_actions"] = 9
+    with pytest.raises(DynamicsError, match="not a valid world config"):
+        data_hash(c, w)
