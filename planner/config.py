@@ -93,6 +93,9 @@ class PlannerConfig:
     #: keep predicted states that can no longer reach the goal out of the tree (spill above the
     #: limit, too much water in the target cup, too little water left); see rrt._Search._dead
     prune_dead_states: bool = True
+    #: a predicted tilt above this (rad) after an action means the cup got stuck mid-pour: in the
+    #: simulator such a trajectory ends there, so the state is dead too (part of the pruning)
+    stuck_tilt: float = 0.05
     #: torch intra-op threads while planning (restored afterwards); None leaves torch alone.
     #: 1 is fastest for the small batches the planner evaluates and avoids thread-pool stalls
     #: on busy 2-core machines
@@ -126,6 +129,8 @@ class PlannerConfig:
             raise ValueError(f"max_actions={self.max_actions} must be >= 1")
         if not self.goal_tol > 0:
             raise ValueError(f"goal_tol={self.goal_tol} must be > 0")
+        if not self.stuck_tilt > 0:
+            raise ValueError(f"stuck_tilt={self.stuck_tilt} must be > 0 rad")
         if not 0.0 <= self.spill_limit <= 1.0:
             raise ValueError(f"spill_limit={self.spill_limit} outside allowed range [0, 1]")
         if not (math.isfinite(self.beta) and math.isfinite(self.d_max)):

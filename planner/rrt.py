@@ -350,11 +350,12 @@ class _Search:
 
         Spilled water and water in the target cup never come back, and no water is added, so
         a state with spill > spill_limit, v_tgt > g + tol or v_ctrl + v_tgt < g - tol cannot
-        precede a goal state. Keeping such states out of the tree saves most of the search.
+        precede a goal state; nor can a cup left tilted (stuck mid-pour, |theta| > stuck_tilt).
+        Keeping such states out of the tree saves most of the search.
         """
         vc, vt = states[:, 3], states[:, 4]
         return ((1.0 - vc - vt > self.c.spill_limit) | (vt > self.g + self.tol)
-                | (vc + vt < self.g - self.tol))
+                | (vc + vt < self.g - self.tol) | (np.abs(states[:, 2]) > self.c.stuck_tilt))
 
     def _goal_dist(self, states: np.ndarray) -> np.ndarray:
         """Goal distance, exactly 0 iff ``goal_reached`` and at least ``_GOAL_EPS`` otherwise.
