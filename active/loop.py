@@ -240,7 +240,7 @@ class MethodRun:
                 self.state["y"] = torch.cat([self.state["y"], torch.as_tensor(y)])
             tf = time.perf_counter()
             if len(self.state["y"]):
-                self.mde = self.make_mde().fit(self.state["X"], self.state["y"])
+                self.mde.fit(self.state["X"], self.state["y"])  # a failed fit keeps the previous one
                 planner.mde = self.mde
             t_fit += time.perf_counter() - tf
         tt = time.perf_counter()

@@ -17,7 +17,8 @@ from typing import Any
 import gpytorch
 import torch
 from botorch.exceptions.warnings import InputDataWarning
-from botorch.fit import fit_gpytorch_mll
+from botorch.exceptions.warnings import OptimizationWarning
+from botorch.fit import DEFAULT_WARNING_HANDLER, fit_gpytorch_mll
 from botorch.models import SingleTaskGP
 from botorch.models.model import Model
 from botorch.models.transforms.input import Normalize
@@ -399,6 +400,16 @@ def build_noise_gp(X: Tensor, log_noise: Tensor, *, nu: float, bounds: Tensor | 
     return model
 
 
+def _accept_abnormal_line_search(w: warnings.WarningMessage) -> bool:
+    """L-BFGS-B's "ABNORMAL" line-search stop happens at (or next to) an optimum when the last steps
+    no longer decrease the loss in float64; the iterate it returns is a usable fit. BoTorch's
+    default handler counts it as a failed attempt, and after its retries the whole fit failed
+    (seen on simulator data of 60 transitions), leaving the MDE at its prior."""
+    if issubclass(w.category, OptimizationWarning) and "ABNORMAL" in str(w.message):
+        return True
+    return DEFAULT_WARNING_HANDLER(w)
+
+
 def fit_gp(model: SingleTaskGP, *, maxiter: int, jitter: float, max_tries: int) -> float:
     """Fit hyperparameters with BoTorch's ``fit_gpytorch_mll``; returns the log ML per point."""
     mll = ExactMarginalLogLikelihood(model.likelihood, model)
@@ -419,6 +430,7 @@ def fit_gp(model: SingleTaskGP, *, maxiter: int, jitter: float, max_tries: int) 
             closure=closure,
             optimizer_kwargs={"options": {"maxiter": maxiter}, "bounds": bounds},
             max_attempts=2,
+            warning_handler=_accept_abnormal_line_search,
         )
     model.eval()
     with torch.no_grad():
