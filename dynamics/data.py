@@ -130,19 +130,7 @@ class Transitions:
     def load(cls, path: str | Path, expected_hash: str | None = None) -> "Transitions":
         """Load and validate; errors say what is wrong and how to regenerate."""
         path = Path(path)
-        fix = f"delete {path} and regenerate it with `{TRAIN_COMMAND}` (same config overrides)"
-        if not path.is_file():
-            raise DynamicsError(f"dynamics dataset {path} does not exist; generate it with `{TRAIN_COMMAND}`")
-        try:
-            payload = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as e:  # noqa: BLE001 - any unpickling failure means a corrupt file
-            raise DynamicsError(f"dynamics dataset {path} is corrupt or not a torch file ({type(e).__name__}: "
-                                f"{str(e)[:200]}); {fix}") from None
-        if not isinstance(payload, dict) or payload.get("format") != DATASET_FORMAT:
-            raise DynamicsError(f"{path} is not a dynamics dataset (format tag missing); {fix}")
-        if payload.get("version") != DATA_FORMAT_VERSION:
-            raise DynamicsError(f"dynamics dataset {path} has format version {payload.get('version')}, this code "
-                                f"reads version {DATA_FORMAT_VERSION}; {fix}")
+        payload, fix = load_tagged(path, "dataset", DATASET_FORMAT, DATA_FORMAT_VERSION, "regenerate it", "generate")
         try:
             arrays = {k: payload["arrays"][k].numpy() for k in FIELDS}
             meta = json.loads(payload["meta"])
@@ -159,6 +147,26 @@ class Transitions:
         sk = self.skill()
         return {"transitions": len(self), "trajectories": int(len(np.unique(self.traj))),
                 "move": int((sk == MOVE).sum()), "pour": int((sk == POUR).sum()), "stuck": int(self.stuck.sum())}
+
+
+def load_tagged(path: Path, what: str, fmt: str, version: int, redo: str, do: str) -> tuple[dict, str]:
+    """Read a torch file written with a format tag and version; errors say how to regenerate it.
+
+    Returns the payload and the "how to fix" text for the caller's own content checks."""
+    fix = f"delete {path} and {redo} with `{TRAIN_COMMAND}` (same config overrides)"
+    if not path.is_file():
+        raise DynamicsError(f"dynamics {what} {path} does not exist; {do} it with `{TRAIN_COMMAND}`")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # noqa: BLE001 - any unpickling failure means a corrupt file
+        raise DynamicsError(f"dynamics {what} {path} is corrupt or not a torch file ({type(e).__name__}: "
+                            f"{str(e)[:200]}); {fix}") from None
+    if not isinstance(payload, dict) or payload.get("format") != fmt:
+        raise DynamicsError(f"{path} is not a dynamics {what} (format tag missing); {fix}")
+    if payload.get("version") != version:
+        raise DynamicsError(f"dynamics {what} {path} has format version {payload.get('version')}, this code "
+                            f"reads version {version}; {fix}")
+    return payload, fix
 
 
 def atomic_torch_save(obj: Any, path: Path) -> None:

@@ -409,20 +409,10 @@ class LearnedDynamics(nn.Module):
     @classmethod
     def load(cls, path: str | Path, expected_hash: str | None = None) -> "LearnedDynamics":
         """Load a checkpoint; ``expected_hash`` (the config's model hash) guards against a stale one."""
+        from .data import load_tagged
+
         path = Path(path)
-        fix = f"delete {path} and retrain with `{TRAIN_COMMAND}` (same config overrides)"
-        if not path.is_file():
-            raise DynamicsError(f"dynamics checkpoint {path} does not exist; train it with `{TRAIN_COMMAND}`")
-        try:
-            payload = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as e:  # noqa: BLE001 - any unpickling failure means a corrupt file
-            raise DynamicsError(f"dynamics checkpoint {path} is corrupt or not a torch file ({type(e).__name__}: "
-                                f"{str(e)[:200]}); {fix}") from None
-        if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
-            raise DynamicsError(f"{path} is not a dynamics checkpoint (format tag missing); {fix}")
-        if payload.get("version") != MODEL_FORMAT_VERSION:
-            raise DynamicsError(f"dynamics checkpoint {path} has format version {payload.get('version')}, this code "
-                                f"reads version {MODEL_FORMAT_VERSION}; {fix}")
+        payload, fix = load_tagged(path, "checkpoint", CHECKPOINT_FORMAT, MODEL_FORMAT_VERSION, "retrain", "train")
         try:
             mcfg = ModelConfig(**json.loads(payload["model_config"]))
             info = json.loads(payload["info"])
