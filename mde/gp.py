@@ -232,6 +232,8 @@ class MDEGP(SingleTaskGP):
         if noise_model is not None:
             noise_model.requires_grad_(False)
             noise_model.eval()
+            tf = noise_model.outcome_transform
+            self.log_noise_max = float(noise_model.train_targets.max() * tf.stdvs.reshape(()) + tf.means.reshape(()))
         self.noise_model = noise_model
 
     def noise_variance(self, X: Tensor) -> Tensor:
@@ -244,6 +246,9 @@ class MDEGP(SingleTaskGP):
             raise RuntimeError("noise_variance needs a heteroscedastic model")
         with exact_gp_settings():
             log_noise = self.noise_model.posterior(X).mean.squeeze(-1)
+        # never above the largest noise seen in the data: far from the data the log-noise GP can
+        # extrapolate above every training value, which made every novel transition "uncertain"
+        log_noise = log_noise.clamp_max(self.log_noise_max)
         var_z = log_noise.exp() / self.outcome_transform.stdvs.reshape(()) ** 2
         return var_z.clamp_min(self.noise_floor)
 

@@ -345,6 +345,8 @@ class HeteroscedasticGPMDE:
             return f.const_noise_z
         m, s = f.noise_affine
         log_noise = f.noise_cache.mean(X).mul_(s).add_(m)  # log variance, label units
+        # capped at the largest training noise (see MDEGP.noise_variance)
+        log_noise = log_noise.clamp_max_(f.mean_model.log_noise_max)
         return log_noise.exp_().div_(f.sigma_z**2).clamp_min_(self._config.noise_floor)
 
     def posterior(self, X: Tensor, observation_noise: bool = False) -> Posterior:
