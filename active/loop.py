@@ -33,7 +33,7 @@ from sim.skills import pour
 from sim.world import WorldConfig, state_distance
 
 from .experiment import ExperimentConfig
-from .io import load_torch, save_torch, write_csv, write_json
+from .io import load_torch, save_torch, write_csv
 from .methods import METHODS, choose
 from .tracking import Tracker
 

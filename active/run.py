@@ -88,12 +88,11 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
                           f"{exp.name}-{method}-seed{seed}", cfg, out, entity=wandb_cfg.get("entity"),
                           group=f"{exp.name}-seed{seed}")
         MethodRun(ctx, method, make_mde, make_acq, tracker).run()
-        report([out], out / "report")
+        made = report([out], out / "report")  # after every method: figures for W&B and partial runs
         tracker.log_images({"learning_curves": out / "report" / "learning_curves.png",
                             "trajectory_types": out / "report" / "trajectory_types.png"})
         tracker.finish()
     executor.close()
-    made = report([out], out / "report")
     print(made["table"])
     print(f"results and figures in {out} ({time.perf_counter() - t0:.0f} s)")
     return made

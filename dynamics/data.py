@@ -296,7 +296,7 @@ def generate_transitions(data: DataConfig, world: str = "source", n_batches: int
 
     from sim.execute import PouringExecutor
     from sim.problems import sample_problems
-    from sim.world import WorldConfig, check_world
+    from sim.world import check_world
 
     check_world(world)
     n_batches = data.n_batches if n_batches is None else int(n_batches)

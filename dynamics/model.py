@@ -39,7 +39,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from .config import MODEL_FORMAT_VERSION, TRAIN_COMMAND, DynamicsError, ModelConfig
+from .config import MODEL_FORMAT_VERSION, DynamicsError, ModelConfig
 
 CHECKPOINT_FORMAT = "active-mde/dynamics-checkpoint"
 STATE_DIM, ACTION_DIM = 5, 3

@@ -1,6 +1,5 @@
 """Acquisition functions against values computed by hand from a known posterior."""
 
-import math
 
 import pytest
 import torch
