@@ -43,7 +43,7 @@ RESULT_FIELDS = ["method", "seed", "iteration", "n_trajectories", "n_transitions
                  "test_plan_found", "train_goal_reached", "fallbacks", "plan_seconds", "sim_seconds", "fit_seconds",
                  "test_seconds", "iteration_seconds"]
 CATEGORY_FIELDS = ["method", "seed", "iteration", "trajectory", "category", "source", "n_candidates", "steps",
-                   "stuck", "final_spill", "goal", "goal_reached"]
+                   "stuck", "stuck_on", "final_spill", "goal", "goal_reached"]
 CALIBRATION_FIELDS = ["method", "seed", "iteration", "n", "coverage50", "coverage80", "coverage95", "nll"]
 #: result columns that are wall-clock times (excluded when comparing a resumed run with a fresh one)
 TIMING_FIELDS = {"plan_seconds", "sim_seconds", "fit_seconds", "test_seconds", "iteration_seconds"}
@@ -230,7 +230,8 @@ class MethodRun:
                 self.state["categories"].append({
                     "method": self.method, "seed": ctx.seed, "iteration": it + 1, "trajectory": self.state["n_trajectories"],
                     "category": r.category, "source": ch.source, "n_candidates": ch.n_candidates, "steps": len(r.steps),
-                    "stuck": r.stuck, "final_spill": round(r.final_spill, 4), "goal": round(prob.goal, 4),
+                    "stuck": r.stuck, "stuck_on": r.stuck_on or "", "final_spill": round(r.final_spill, 4),
+                    "goal": round(prob.goal, 4),
                     "goal_reached": r.goal_reached})
                 self.state["n_trajectories"] += 1
             s, a, s2 = _stack_steps(results)
