@@ -123,6 +123,7 @@ def test_problem_sampler_is_seeded_and_in_range(cfg):
     ({"actions": [[pour(0.1, 0.1)] * 7]}, "max_actions = 6"),
     ({"actions": [[[5, 0.1, 0.1]]]}, "skill id 5"),
     ({"goals": [1.5]}, r"fractions in \[0, 1\]"),
+    ({"starts": np.array([[0.30, 0.10]])}, "overlaps the target body"),
 ])
 def test_bad_input_fails_before_simulating(cfg, kwargs, match):
     ex = PouringExecutor(cfg)
