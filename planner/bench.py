@@ -110,11 +110,18 @@ def plan_problems(planner: Planner, problems: list, seed: int) -> dict[str, Any]
 def run(problems: int = 30, seed: int = 0, mde: str = "auto", mde_points: int = 1200, beta: float = 2.0,
         d_max: float = 0.07, candidates: int = 9, candidate_problems: int = 5, unbatched_problems: int = 10,
         throughput_seconds: float = 0.5, time_budget: float | None = None,
-        config: PlannerConfig | None = None) -> dict[str, Any]:
+        config: PlannerConfig | None = None, dynamics_path: str | None = None) -> dict[str, Any]:
     config = (config or PlannerConfig()).replace(beta=beta, d_max=d_max, n_candidates=candidates)
     if time_budget is not None:
         config = config.replace(time_budget=time_budget)
-    dynamics = StandInMLPDynamics(seed=seed)
+    if dynamics_path is None:
+        dynamics = StandInMLPDynamics(seed=seed)
+        dyn_info = "planner.standins.StandInMLPDynamics (stand-in: analytic + 8-128-128-5 MLP)"
+    else:  # a trained f_hat checkpoint; imported here only, the planner itself needs no dynamics package
+        from dynamics import LearnedDynamics
+
+        dynamics = LearnedDynamics.load(dynamics_path)
+        dyn_info = f"dynamics.LearnedDynamics ({dynamics_path})"
     model, mde_info = build_mde(mde, mde_points, seed, config)
     probs = sample_problems(problems, np.random.default_rng(seed + 1), config)
     planner = Planner(dynamics, model, config)
@@ -123,7 +130,7 @@ def run(problems: int = 30, seed: int = 0, mde: str = "auto", mde_points: int = 
     result: dict[str, Any] = {
         "machine": {"python": platform.python_version(), "torch": torch.__version__,
                     "cpus": _cpu_count(), "torch_threads_planning": config.torch_threads},
-        "dynamics": "planner.standins.StandInMLPDynamics (stand-in: analytic + 8-128-128-5 MLP)",
+        "dynamics": dyn_info,
         "mde": mde_info,
         "precondition": {"beta": beta, "d_max": d_max},
         "config": config.to_dict(),
@@ -224,6 +231,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--unbatched-problems", type=int, default=10)
     ap.add_argument("--throughput-seconds", type=float, default=0.5, help="time per raw-throughput measurement")
     ap.add_argument("--time-budget", type=float, default=None, help="override the per-candidate time budget (s)")
+    ap.add_argument("--dynamics", default=None, metavar="CHECKPOINT",
+                    help="a trained dynamics.LearnedDynamics checkpoint (e.g. .cache/dynamics/model-*/model.pt) "
+                         "instead of the stand-in")
     ap.add_argument("--out", type=Path, default=None, help="write the full result as JSON here")
     args = ap.parse_args(argv)
     if args.problems < 1:
@@ -231,7 +241,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     r = run(problems=args.problems, seed=args.seed, mde=args.mde, mde_points=args.mde_points,
             beta=args.beta, d_max=args.d_max, candidates=args.candidates,
             candidate_problems=args.candidate_problems, unbatched_problems=args.unbatched_problems,
-            throughput_seconds=args.throughput_seconds, time_budget=args.time_budget)
+            throughput_seconds=args.throughput_seconds, time_budget=args.time_budget, dynamics_path=args.dynamics)
     print(format_table(r))
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
