@@ -38,7 +38,7 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     from sim.world import WorldConfig
 
     from .experiment import ExperimentConfig
-    from .io import write_json
+    from .io import load_torch, save_torch, write_json
     from .loop import (Context, MethodRun, acquisition_factory, build_planner_config, derive_seed,
                        make_calibration_set)
     from .report import report
@@ -73,8 +73,6 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     executor = PouringExecutor(world)
     test_problems = sample_problems(world, exp.test_problems, derive_seed(seed, "test"), world="target")
     cal_path = out / "calibration_set.pt"
-    from .io import load_torch, save_torch
-
     if cal_path.exists():
         calibration = load_torch(cal_path)
     else:

@@ -17,7 +17,7 @@ import numpy as np
 
 from .mpm import MPMSolver
 from .render import snapshot
-from .skills import Obstacles, Schedule, _to_world, cup_boundary, plan_schedule, validate_actions
+from .skills import Obstacles, Schedule, to_world, cup_boundary, plan_schedule, validate_actions
 from .world import CTRL, WorldConfig, check_world, goal_reached, spill
 
 log = logging.getLogger(__name__)
@@ -113,7 +113,7 @@ class PouringExecutor:
         scheds: list[Schedule] = []
         for b in range(B):
             obst = Obstacles(specs[b].bodies[1:], interior_lo, interior_hi)
-            d, idx = obst.sdf(_to_world(self._boundary, starts[b][None])[0])
+            d, idx = obst.sdf(to_world(self._boundary, starts[b][None])[0])
             if d.min() < 0:
                 who = int(idx[np.argmin(d)])
                 name = "tank wall" if who < 0 else f"{obst.bodies[who].name} body"

@@ -114,7 +114,7 @@ def cup_boundary(cfg: WorldConfig, spacing: float = 0.003) -> np.ndarray:
     return np.concatenate(pts)
 
 
-def _to_world(points: np.ndarray, poses: np.ndarray) -> np.ndarray:
+def to_world(points: np.ndarray, poses: np.ndarray) -> np.ndarray:
     """points (m, 2) in the body frame, poses (k, 3) -> (k, m, 2) world points."""
     c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
     x = c * points[None, :, 0] - s * points[None, :, 1] + poses[:, None, 0]
@@ -165,7 +165,7 @@ def plan_schedule(cfg: WorldConfig, start: np.ndarray, actions: np.ndarray, obst
             ox = pivot[0] - (np.cos(phi) * lip[0] - np.sin(phi) * lip[1])
             oy = pivot[1] - (np.sin(phi) * lip[0] + np.cos(phi) * lip[1])
             seg = np.stack([ox, oy, phi], 1)
-        d, idx = obstacles.sdf(_to_world(boundary, seg).reshape(-1, 2))
+        d, idx = obstacles.sdf(to_world(boundary, seg).reshape(-1, 2))
         d, idx = d.reshape(len(seg), -1), idx.reshape(len(seg), -1)
         hit = np.flatnonzero(d.min(1) < CONTACT_MARGIN)
         sched.executed += 1
