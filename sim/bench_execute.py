@@ -17,11 +17,11 @@ from .skills import move, pour, random_actions
 from .world import WorldConfig
 
 
-def bench_batch(cfg: WorldConfig, n: int, n_actions: int, seed: int = 0) -> dict:
+def bench_batch(cfg: WorldConfig, n: int, n_actions: int, seed: int = 0, arch: str | None = None) -> dict:
     rng = np.random.default_rng(seed)
     probs = sample_problems(cfg, n, seed)
     acts = [random_actions(cfg, n_actions, rng) for _ in range(n)]
-    ex = PouringExecutor(cfg)
+    ex = PouringExecutor(cfg, arch=arch)
     ex.solver(n)  # compile outside the timed region (once per process and batch size)
     t0 = time.perf_counter()
     res = ex.run("target", np.array([p.start[:3] for p in probs]), acts,
@@ -74,11 +74,12 @@ def main(argv=None) -> None:
     ap.add_argument("--out", default="bench_execute.json")
     ap.add_argument("--resolution", action="store_true", help="also run the resolution check")
     ap.add_argument("--skip-batch", action="store_true", help="only the resolution check")
+    ap.add_argument("--arch", default=None, help="cpu | gpu | auto (default: the world config's)")
     args = ap.parse_args(argv)
     cfg = WorldConfig.load()
     result = {}
     if not args.skip_batch:
-        result["batch"] = row = bench_batch(cfg, args.n, args.actions)
+        result["batch"] = row = bench_batch(cfg, args.n, args.actions, arch=args.arch)
         print(f"{args.n} target-world trajectories x {args.actions} actions: {row['wall_seconds']:.1f} s wall "
               f"({row['timing']['sim_seconds']:.1f} s simulated, {row['timing']['substeps']} substeps), target <= 90 s")
         for k, v in row["shares"].items():
