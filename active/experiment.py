@@ -25,6 +25,9 @@ class ExperimentConfig:
     calibration_trajectories: int = 8
     planner_propagation_budget: int = 5000  # per candidate: the deterministic budget
     planner_time_budget: float = 30.0  # s per candidate: a safety net only (wall clock is not reproducible)
+    #: the planner's model knows the source world's static obstacles (target cup, tank walls) and
+    #: predicts moves / pours that hit them as stuck (dynamics.ContactAwareDynamics); the plant stays unknown
+    known_obstacles: bool = True
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], method: str = "all") -> "ExperimentConfig":
@@ -59,6 +62,8 @@ class ExperimentConfig:
             raise ValueError(f"experiment.beta_train = {self.beta_train}: allowed [beta_early, beta_late]")
         if self.beta_switch_iteration < 0:
             raise ValueError(f"experiment.beta_switch_iteration = {self.beta_switch_iteration}: allowed >= 0")
+        if not isinstance(self.known_obstacles, bool):
+            raise ValueError(f"experiment.known_obstacles = {self.known_obstacles!r}: allowed true or false")
         if not self.planner_time_budget > 0:
             raise ValueError(f"experiment.planner_time_budget = {self.planner_time_budget}: allowed > 0 s")
 

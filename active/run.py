@@ -70,6 +70,8 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     # ---- shared pieces: dynamics model (cached by config hash), simulator, problems, held-out data
     log.info("dynamics model: loading from cache or training (source world only)")
     dyn = dynamics.load_or_train(cfg["dynamics"], world_cfg=cfg["world"], progress=progress)
+    if exp.known_obstacles:
+        dyn = dynamics.ContactAwareDynamics(dyn, world)
     executor = PouringExecutor(world)
     test_problems = sample_problems(world, exp.test_problems, derive_seed(seed, "test"), world="target")
     cal_path = out / "calibration_set.pt"

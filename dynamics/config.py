@@ -294,6 +294,21 @@ def world_dict(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
     return json.loads(json.dumps(dataclasses.asdict(world_cfg), default=_plain))
 
 
+def solver_dict(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
+    """The solver settings of that world with the solver's defaults filled in.
+
+    Part of the data hash so that a physics default that changes (e.g. ``sim.volume_correction``)
+    invalidates cached datasets even when the world YAML does not change.
+    """
+    from sim.world import WorldConfig
+
+    world = WorldConfig.from_mapping(world_dict(data, world_cfg))
+    sim = dataclasses.asdict(world.sim_config(1))
+    for k in ("n_envs", "arch", "max_particles"):
+        sim.pop(k, None)
+    return json.loads(json.dumps(sim, default=_plain))
+
+
 def _digest(obj: Any) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()).hexdigest()[:16]
 
@@ -302,7 +317,8 @@ def data_hash(cfg: DynamicsConfig, world_cfg: Any = None) -> str:
     """Identity of a dataset: generator fields (without the world path) + world content + format."""
     d = _plain(cfg.data)
     d.pop("world")
-    return _digest({"format": DATA_FORMAT_VERSION, "data": d, "world": world_dict(cfg.data, world_cfg)})
+    return _digest({"format": DATA_FORMAT_VERSION, "data": d, "world": world_dict(cfg.data, world_cfg),
+                    "solver": solver_dict(cfg.data, world_cfg)})
 
 
 def model_hash(cfg: DynamicsConfig, dhash: str | None = None, world_cfg: Any = None) -> str:

@@ -96,6 +96,9 @@ class PlannerConfig:
     #: a predicted tilt above this (rad) after an action means the cup got stuck mid-pour: in the
     #: simulator such a trajectory ends there, so the state is dead too (part of the pruning)
     stuck_tilt: float = 0.05
+    #: a move whose predicted end position is farther than this (m) from its commanded target got
+    #: stuck on the way (the simulator ends the trajectory there): pruned like a dead state
+    stuck_move: float = 0.005
     #: torch intra-op threads while planning (restored afterwards); None leaves torch alone.
     #: 1 is fastest for the small batches the planner evaluates and avoids thread-pool stalls
     #: on busy 2-core machines
@@ -131,6 +134,8 @@ class PlannerConfig:
             raise ValueError(f"goal_tol={self.goal_tol} must be > 0")
         if not self.stuck_tilt > 0:
             raise ValueError(f"stuck_tilt={self.stuck_tilt} must be > 0 rad")
+        if not self.stuck_move > 0:
+            raise ValueError(f"stuck_move={self.stuck_move} must be > 0 m")
         if not 0.0 <= self.spill_limit <= 1.0:
             raise ValueError(f"spill_limit={self.spill_limit} outside allowed range [0, 1]")
         if not (math.isfinite(self.beta) and math.isfinite(self.d_max)):

@@ -55,7 +55,7 @@ import numpy as np
 import torch
 
 from .config import PlannerConfig
-from .interfaces import (STATE_DIM, DeviationEstimator, DynamicsModel, goal_distance)
+from .interfaces import (SKILL_MOVE, STATE_DIM, DeviationEstimator, DynamicsModel, goal_distance)
 from .problems import validate_goal, validate_precondition, validate_start
 from .results import CandidateSet, PlannerStats, PlanResult, Trajectory
 from .sampling import ActionSampler
@@ -328,7 +328,7 @@ class _Search:
             ok &= np.all((nxt >= self.lo) & (nxt <= self.hi), axis=1)
         at_goal = self._goal_dist(nxt) <= 0.0
         if self.c.prune_dead_states:
-            ok &= ~self._dead(nxt)
+            ok &= ~self._dead(nxt) & ~self._stuck_move(nxt, acts)
         if self.depth[pid] + 1 >= self.c.max_actions:
             ok &= at_goal  # a child at the depth limit is useless unless it is a goal
         idx = np.flatnonzero(ok)
@@ -356,6 +356,12 @@ class _Search:
         vc, vt = states[:, 3], states[:, 4]
         return ((1.0 - vc - vt > self.c.spill_limit) | (vt > self.g + self.tol)
                 | (vc + vt < self.g - self.tol) | (np.abs(states[:, 2]) > self.c.stuck_tilt))
+
+    def _stuck_move(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """Moves predicted to stop short of their target (stuck on the way): the trajectory would end there."""
+        move = np.rint(actions[:, 0]) == SKILL_MOVE
+        miss = np.hypot(states[:, 0] - actions[:, 1], states[:, 1] - actions[:, 2])  # x, y vs move(x, y)
+        return move & (miss > self.c.stuck_move)
 
     def _goal_dist(self, states: np.ndarray) -> np.ndarray:
         """Goal distance, exactly 0 iff ``goal_reached`` and at least ``_GOAL_EPS`` otherwise.

@@ -33,6 +33,15 @@ class SimConfig:
     sound_speed: float = 12.0  # m/s, numerical speed of sound (bulk modulus = rho c^2)
     gravity: float = 9.81  # m/s^2, acting along -y
     friction: float = 0.0  # Coulomb coefficient water/wall (0 = free slip)
+    #: False: no negative pressure (J is capped at 1), so water that separates -- a stream leaving a
+    #: lip, a film on a wall -- is not pulled back by tension, as free-surface water should behave;
+    #: True: mpm88's p = K (1 - J) on both sides, which makes coarse water cohesive and sticky
+    tension: bool = True
+    #: True: J never exceeds the grid-density estimate ppc * m_p / sum_i w_ip m_i, so water squeezed by
+    #: collider projection (fast-rotating cups) regains its volume instead of staying compressed at
+    #: rest pressure; False: J advected only (mpm88), which lets a tilted cup's water collapse into a film
+    volume_correction: bool = True
+    volume_relax: float = 0.02  # s, time constant of that correction
     ppc: int = 4  # particles per cell at rest (must be k**dim)
     n_envs: int = 1  # B, independent environments sharing one set of fields
     max_particles: int = 1024  # per environment

@@ -491,12 +491,16 @@ class MPMSolver:
                 w = [0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2]
                 new_v = ti.Vector.zero(ti.f32, dim)
                 new_C = ti.Matrix.zero(ti.f32, dim, dim)
+                mass_near = 0.0
                 for offset in ti.static(ti.grouped(ti.ndrange(*([3] * dim)))):
                     dpos = offset - fx
                     weight = 1.0
                     for d in ti.static(range(dim)):
                         weight *= w[offset[d]][d]
-                    g_v = self.grid_v[self._gidx(b, base + offset)]
+                    gi = self._gidx(b, base + offset)
+                    g_v = self.grid_v[gi]
+                    if ti.static(self.cfg.volume_correction):
+                        mass_near += weight * self.grid_m[gi]
                     new_v += weight * g_v
                     new_C += 4.0 / dx * weight * g_v.outer_product(dpos)
                 xn = self.x[b, p] + dt * new_v
@@ -506,6 +510,16 @@ class MPMSolver:
                     xn -= phi * n
                     new_v = self._separate(new_v, vc, n)
                 J = self.J[b, p] * (1.0 + dt * new_C.trace())
+                if ti.static(self.cfg.volume_correction):
+                    # the grid's density says the water is more compressed than the advected J does
+                    # (particles pushed together by collider projection): use it, so pressure restores
+                    # the lost volume; never the other way (free surfaces and walls read low density)
+                    # relaxed over volume_relax seconds and bounded, so that particle noise in the
+                    # density estimate does not become pressure noise
+                    J_rho = ti.max(self.cfg.ppc * self.p_mass / ti.max(mass_near, 1e-12), 0.9)
+                    J += ti.min(J_rho - J, 0.0) * ti.min(dt / self.cfg.volume_relax, 1.0)
+                if ti.static(not self.cfg.tension):
+                    J = ti.min(J, 1.0)
                 bad = _not_finite(J)
                 for d in ti.static(range(dim)):
                     bad = bad | _not_finite(xn[d]) | _not_finite(new_v[d])

@@ -11,7 +11,7 @@ from sim.world import WorldConfig, goal_reached, spill, state_distance
 SCRIPTS = [
     ([0.42, 0.20], [pour(0.0, 0.5)]),  # 0: no tilt
     ([0.42, 0.20], [move(0.31, 0.14), pour(2.2, 1.0)]),  # 1: full tilt over the target, below the canopy
-    ([0.42, 0.20], [move(0.42, 0.32), move(0.27, 0.32), pour(1.5, 0.5)]),  # 2: from above the leaves
+    ([0.42, 0.20], [move(0.42, 0.30), move(0.27, 0.30), pour(1.3, 0.5)]),  # 2: from above the leaves
     ([0.42, 0.24], [move(0.15, 0.24), pour(2.0, 0.5)]),  # 3: straight through a leaf
 ]
 

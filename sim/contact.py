@@ -1,0 +1,177 @@
+"""Where does a skill's cup path first touch the known static geometry? A vectorised, approximate
+version of the contact test that :func:`sim.skills.plan_schedule` runs tick by tick.
+
+Why: the learned dynamics model is trained on source-world data and rarely sees the cup stopped by
+the target cup or the tank walls, yet those are fixed and known in both worlds. A planner that
+knows where they are need not learn them from target-world failures (the plant, which it does not
+know, stays the model deviation the MDE has to learn). Batched over many (pose, action) pairs,
+with a cheap bounding-circle filter first, so that the planner can call it on every propagation.
+
+The path of each action is sampled at ``samples`` points (then refined inside the first touching
+interval); the cup's closed outer box is sampled every ``spacing`` metres and the obstacles'
+outline vertices are tested against that box. A path that passes within ``clearance`` of an
+obstacle counts as stuck (conservative: the samples can step over a grazing contact). Agreement with the simulator's
+schedule is checked in ``tests/test_sim_contact.py``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .skills import CONTACT_MARGIN, MOVE, Obstacles, cup_boundary, to_world
+from .world import WorldConfig, check_world
+
+
+class ContactPredictor:
+    """First contact of move / pour paths with one world's static obstacles (no plant jitter)."""
+
+    def __init__(self, cfg: WorldConfig, world: str = "source", samples: int = 24, refine: int = 8,
+                 spacing: float = 0.06, clearance: float = 0.002):
+        check_world(world)
+        if samples < 2 or refine < 1:
+            raise ValueError(f"samples = {samples}, refine = {refine}: allowed samples >= 2 and refine >= 1")
+        if clearance < 0:
+            raise ValueError(f"clearance = {clearance}: allowed a distance >= 0 (m)")
+        self.cfg, self.samples, self.refine = cfg, int(samples), int(refine)
+        #: a path closer than this to an obstacle counts as stuck: the simulator's contact margin
+        #: plus a safety clearance that covers the path sampling (grazing paths count as stuck)
+        self.margin = CONTACT_MARGIN + float(clearance)
+        spec = cfg.scene(world, (0.3, 0.2, 0.0))
+        lo = np.full(2, cfg.floor)
+        hi = np.asarray(cfg.sim["domain"], float) - cfg.floor
+        self.obstacles = Obstacles(spec.bodies[1:], lo, hi)
+        # the outer outline with the mouth closed: an obstacle can only reach the inside of the
+        # cup through its mouth, crossing the mouth line first
+        w = cfg.controlled_cup.inner_width / 2 + cfg.controlled_cup.wall
+        h = cfg.controlled_cup.inner_height
+        fl = float(cup_boundary(cfg, spacing)[:, 1].min())
+        corners = np.array([[-w, fl], [w, fl], [w, h], [-w, h]])
+        pts = []
+        for p, q in zip(corners, np.roll(corners, -1, 0)):
+            k = max(2, int(np.ceil(np.linalg.norm(q - p) / spacing)))
+            pts.append(p + (q - p) * np.linspace(0, 1, k, endpoint=False)[:, None])
+        self.boundary = np.concatenate(pts)
+        self.centre = np.array([0.0, 0.5 * (fl + h)])
+        self.half = np.array([w, 0.5 * (h - fl)])
+        self.cup_radius = float(np.linalg.norm(self.boundary - self.centre, axis=1).max())
+        circles, corners_w, owner = [], [], []
+        for k, body in enumerate(self.obstacles.bodies):
+            pts = np.concatenate([to_world(sh.outline(), np.asarray(body.pose, float)[None])[0] for sh in body.shapes])
+            c = 0.5 * (pts.min(0) + pts.max(0))
+            circles.append((c, float(np.linalg.norm(pts - c, axis=1).max())))
+            corners_w.append(pts)
+            owner.append(np.full(len(pts), k))
+        self._circles = circles
+        # obstacle outline vertices: a sharp obstacle corner can touch a flat cup side between the
+        # cup's outline samples, so they are tested against the cup's box as well
+        self._obstacle_pts = np.concatenate(corners_w) if corners_w else np.zeros((0, 2))
+        self._obstacle_owner = np.concatenate(owner) if owner else np.zeros(0, int)
+        self.lip = cfg.controlled_cup.lip
+
+    # ------------------------------------------------------------------ paths
+    def _poses(self, p0: np.ndarray, a: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Cup poses (n, m, 3) at path fractions u (n, m) of each action (straight move / tilt about the lip)."""
+        move = np.rint(a[:, 0]) == MOVE
+        out = np.empty(u.shape + (3,))
+        if move.any():
+            goal = np.stack([a[move, 1], a[move, 2], p0[move, 2]], 1)
+            out[move] = p0[move, None] + (goal - p0[move])[:, None] * u[move, :, None]
+        pour = ~move
+        if pour.any():
+            q, lx, ly = p0[pour], self.lip[0], self.lip[1]
+            c, s = np.cos(q[:, 2]), np.sin(q[:, 2])
+            px, py = q[:, 0] + c * lx - s * ly, q[:, 1] + s * lx + c * ly
+            phi = q[:, 2, None] + a[pour, 1, None] * u[pour]
+            out[pour, :, 0] = px[:, None] - (np.cos(phi) * lx - np.sin(phi) * ly)
+            out[pour, :, 1] = py[:, None] - (np.sin(phi) * lx + np.cos(phi) * ly)
+            out[pour, :, 2] = phi
+        return out
+
+    def _clearance(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Smallest obstacle distance of the cup outline (n, m) and the obstacle index (-1 = tank).
+
+        Poses whose bounding circle is clear of every obstacle's get +inf without the outline test.
+        """
+        n, m = poses.shape[:2]
+        flat = poses.reshape(-1, 3)
+        d_out = np.full(n * m, np.inf)
+        i_out = np.full(n * m, -2)
+        near = np.flatnonzero(self._near(flat))
+        if near.size:
+            pts = to_world(self.boundary, flat[near]).reshape(-1, 2)
+            d, idx = self.obstacles.sdf(pts)
+            d, idx = d.reshape(near.size, -1), idx.reshape(near.size, -1)
+            if len(self._obstacle_pts):
+                d = np.concatenate([d, self._cup_sdf(flat[near], self._obstacle_pts)], 1)
+                idx = np.concatenate([idx, np.broadcast_to(self._obstacle_owner, (near.size, len(self._obstacle_owner)))], 1)
+            j = d.argmin(1)
+            rows = np.arange(near.size)
+            d_out[near], i_out[near] = d[rows, j], idx[rows, j]
+        return d_out.reshape(n, m), i_out.reshape(n, m)
+
+    def _cup_sdf(self, poses: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """Signed distance (k, p) of world points to the cup's closed outer box at each pose (k, 3)."""
+        c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+        dx = pts[None, :, 0] - poses[:, 0, None]
+        dy = pts[None, :, 1] - poses[:, 1, None]
+        qx = np.abs(c * dx + s * dy - self.centre[0]) - self.half[0]
+        qy = np.abs(-s * dx + c * dy - self.centre[1]) - self.half[1]
+        return np.hypot(np.maximum(qx, 0), np.maximum(qy, 0)) + np.minimum(np.maximum(qx, qy), 0)
+
+    def _near(self, poses: np.ndarray) -> np.ndarray:
+        """(k,) whether a pose (k, 3) comes close enough to an obstacle to need the outline test."""
+        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        xy = poses[:, :2] + np.stack([-s * self.centre[1], c * self.centre[1]], 1)
+        r = self.cup_radius + self.margin
+        ob = self.obstacles
+        near = ((xy - ob.interior_lo).min(-1) < r) | ((ob.interior_hi - xy).min(-1) < r)
+        for cen, rad in self._circles:
+            near |= np.linalg.norm(xy - cen, axis=-1) < r + rad
+        return near
+
+    # ------------------------------------------------------------------ public
+    def first_contact(self, poses: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For cup poses (n, 3) and actions (n, 3): (stuck (n,), stop pose (n, 3), obstacle index (n,)).
+
+        The stop pose is the last sampled pose before the first contact (the pose itself when not
+        stuck: the move's target or, for a pour, the start pose, since the cup returns upright).
+        Obstacle index: position in ``self.obstacles.bodies``, -1 for the tank walls, -2 for none.
+        """
+        p0 = np.asarray(poses, float).reshape(-1, 3)
+        a = np.asarray(actions, float).reshape(-1, 3)
+        n = len(p0)
+        stuck = np.zeros(n, bool)
+        who = np.full(n, -2)
+        stop = p0.copy()
+        move = np.rint(a[:, 0]) == MOVE
+        stop[move, :2] = a[move, 1:3]
+        if n == 0:
+            return stuck, stop, who
+        u = np.broadcast_to(np.linspace(0.0, 1.0, self.samples + 1)[1:], (n, self.samples))
+        path = self._poses(p0, a, u)
+        d, idx = self._clearance(path)
+        touch = d < self.margin
+        hit = touch.any(1)
+        rows = np.flatnonzero(hit)
+        if rows.size == 0:
+            return stuck, stop, who
+        k = touch[hit].argmax(1)  # first touching sample
+        u_lo = np.where(k > 0, u[rows, np.maximum(k - 1, 0)], 0.0)
+        u_hi = u[rows, k]
+        # refine inside (u_lo, u_hi]: the first touching sub-sample, and the pose before it
+        uu = u_lo[:, None] + (u_hi - u_lo)[:, None] * np.linspace(0.0, 1.0, self.refine + 1)[None, 1:]
+        sub = self._poses(p0[rows], a[rows], uu)
+        d2, idx2 = self._clearance(sub)
+        t2 = d2 < self.margin
+        j = t2.argmax(1)  # exists: the last sub-sample is u_hi, which touches
+        u_stop = np.where(j > 0, uu[np.arange(len(rows)), np.maximum(j - 1, 0)], u_lo)
+        stop[rows] = self._poses(p0[rows], a[rows], u_stop[:, None])[:, 0]
+        stuck[rows] = True
+        who[rows] = idx2[np.arange(len(rows)), j]
+        return stuck, stop, who
+
+    def name(self, index: int) -> str:
+        """Name of an obstacle index returned by :meth:`first_contact`."""
+        if index == -2:
+            return ""
+        return "tank" if index == -1 else self.obstacles.bodies[index].name
