@@ -28,6 +28,11 @@ class ExperimentConfig:
     #: the planner's model knows the source world's static obstacles (target cup, tank walls) and
     #: predicts moves / pours that hit them as stuck (dynamics.ContactAwareDynamics); the plant stays unknown
     known_obstacles: bool = True
+    #: > 0: at test time, also execute every found plan with its last pour refined by this many
+    #: gradient steps in the differentiable source-world simulator (active.refine); results.csv gets
+    #: test_success_refined beside test_success (unrefined). Costs ~30 s per step for 8 pours on 2 cores
+    refine_steps: int = 0
+    refine_lr: float = 0.05
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], method: str = "all") -> "ExperimentConfig":
@@ -62,6 +67,10 @@ class ExperimentConfig:
             raise ValueError(f"experiment.beta_train = {self.beta_train}: allowed [beta_early, beta_late]")
         if self.beta_switch_iteration < 0:
             raise ValueError(f"experiment.beta_switch_iteration = {self.beta_switch_iteration}: allowed >= 0")
+        if not isinstance(self.refine_steps, int) or self.refine_steps < 0:
+            raise ValueError(f"experiment.refine_steps = {self.refine_steps!r}: allowed an integer >= 0 (0 = off)")
+        if not self.refine_lr > 0:
+            raise ValueError(f"experiment.refine_lr = {self.refine_lr!r}: allowed > 0")
         if not isinstance(self.known_obstacles, bool):
             raise ValueError(f"experiment.known_obstacles = {self.known_obstacles!r}: allowed true or false")
         if not self.planner_time_budget > 0:

@@ -182,7 +182,8 @@ class MethodRun:
         self.state["completed"] = iteration
         save_torch(self.dir / "dataset.pt", {"X": self.state["X"], "y": self.state["y"],
                                              "feature_names": ["x", "y", "theta", "v_ctrl", "v_tgt", "skill", "p1", "p2"]})
-        write_csv(self.dir / "results.csv", self.state["results"], RESULT_FIELDS)
+        fields = RESULT_FIELDS + (["test_success_refined"] if self.ctx.exp.refine_steps else [])
+        write_csv(self.dir / "results.csv", self.state["results"], fields)
         write_csv(self.dir / "categories.csv", self.state["categories"], CATEGORY_FIELDS)
         write_csv(self.dir / "calibration.csv", self.state["calibration"], CALIBRATION_FIELDS)
         save_torch(self.dir / "state.pt", self.state)  # last: it marks the iteration as complete
@@ -250,7 +251,8 @@ class MethodRun:
         self._calibrate(it)
         row = {"method": self.method, "seed": ctx.seed, "iteration": it + 1,
                "n_trajectories": self.state["n_trajectories"], "n_transitions": int(len(self.state["y"])), "beta": beta,
-               "test_success": success, "test_plan_found": found, "train_goal_reached": reached / len(problems),
+               "test_success": success, "test_plan_found": found,
+               **({"test_success_refined": self.last_refined_success} if exp.refine_steps else {}), "train_goal_reached": reached / len(problems),
                "fallbacks": fallbacks, "plan_seconds": round(t_plan, 3), "sim_seconds": round(t_sim, 3),
                "fit_seconds": round(t_fit, 3), "test_seconds": round(t_test, 3),
                "iteration_seconds": round(time.perf_counter() - t_start, 3)}
@@ -282,12 +284,20 @@ class MethodRun:
                                seed=derive_seed(ctx.seed, "test-plan", it, k))
             plans.append(res.trajectory if res.found else None)
         idx = [k for k, p in enumerate(plans) if p is not None]
-        success = 0
+        success = refined = 0
         if idx:
-            results = execute_padded(ctx, [ctx.test_problems[k] for k in idx], [plans[k].actions for k in idx],
-                                     len(ctx.test_problems))
+            probs = [ctx.test_problems[k] for k in idx]
+            results = execute_padded(ctx, probs, [plans[k].actions for k in idx], len(ctx.test_problems))
             success = sum(bool(r.goal_reached) for r in results)
+            if exp.refine_steps:
+                from .refine import refine_plans
+
+                ref = refine_plans(ctx.world, [plans[k] for k in idx], [p.goal for p in probs], steps=exp.refine_steps,
+                                   lr=exp.refine_lr, progress=ctx.progress)
+                results = execute_padded(ctx, probs, ref.actions, len(ctx.test_problems))
+                refined = sum(bool(r.goal_reached) for r in results)
         n = len(ctx.test_problems)
+        self.last_refined_success = refined / n if exp.refine_steps else None
         return success / n, len(idx) / n
 
     def _calibrate(self, it: int) -> None:
