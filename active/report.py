@@ -69,8 +69,11 @@ def _curves(rows: list[dict], key: str) -> dict[str, dict[int, list[float]]]:
 
 
 def plot_learning_curves(rows: list[dict], path: Path) -> None:
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8), dpi=110, sharey=True)
-    for ax, key, title in zip(axes, ("test_success", "test_plan_found"), ("test success rate", "plan found rate")):
+    panels = [("test_success", "test success rate"), ("test_plan_found", "test plan found rate"),
+              ("train_goal_reached", "training trajectories reaching the goal")]
+    panels = [(k, t) for k, t in panels if all(k in r for r in rows)]
+    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.8), dpi=110, sharey=True)
+    for ax, (key, title) in zip(axes, panels):
         for m, curve in sorted(_curves(rows, key).items()):
             its = sorted(curve)
             mc = [mean_ci(curve[i]) for i in its]
@@ -83,7 +86,7 @@ def plot_learning_curves(rows: list[dict], path: Path) -> None:
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("rate (mean, 95% CI over seeds)")
-    axes[1].legend(fontsize=8, loc="upper left")
+    axes[-1].legend(fontsize=8, loc="upper left")
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
@@ -132,18 +135,25 @@ def plot_calibration(rows: list[dict], path: Path) -> None:
 
 
 def summarise(rows: list[dict]) -> list[dict]:
-    """Area under the learning curve (mean success over iterations) per method, CI over seeds."""
-    per: dict[str, dict[str, dict[int, float]]] = defaultdict(lambda: defaultdict(dict))
+    """Area under the learning curves (mean over iterations) per method, 95% CI over seeds.
+
+    Besides test success and plan found, the mean share of training trajectories that reached their
+    goal: what the method's choices did while collecting data (the paper's Fig. 4 in one number).
+    """
+    per: dict[str, dict[str, dict[int, tuple]]] = defaultdict(lambda: defaultdict(dict))
     for r in rows:
-        per[r["method"]][r["seed"]][int(r["iteration"])] = (float(r["test_success"]), float(r["test_plan_found"]))
+        per[r["method"]][r["seed"]][int(r["iteration"])] = (float(r["test_success"]), float(r["test_plan_found"]),
+                                                            float(r.get("train_goal_reached") or "nan"))
     out = []
     for m in sorted(per):
         auc_s = [np.mean([v[0] for v in its.values()]) for its in per[m].values()]
         auc_p = [np.mean([v[1] for v in its.values()]) for its in per[m].values()]
+        train = [np.mean([v[2] for v in its.values()]) for its in per[m].values()]
         final = [its[max(its)][0] for its in per[m].values()]
-        (a, ah), (p, ph), (f, fh) = mean_ci(auc_s), mean_ci(auc_p), mean_ci(final)
+        (a, ah), (p, ph), (f, fh), (t, th) = mean_ci(auc_s), mean_ci(auc_p), mean_ci(final), mean_ci(train)
         out.append({"method": m, "seeds": len(per[m]), "auc_success": a, "auc_success_ci95": ah,
-                    "auc_plan_found": p, "auc_plan_found_ci95": ph, "final_success": f, "final_success_ci95": fh})
+                    "auc_plan_found": p, "auc_plan_found_ci95": ph, "final_success": f, "final_success_ci95": fh,
+                    "train_goal_reached": t, "train_goal_reached_ci95": th})
     return out
 
 
@@ -156,12 +166,14 @@ def report(dirs: Sequence[Path], out: Path) -> dict:
     plot_learning_curves(results, out / "learning_curves.png")
     summary = summarise(results)
     write_csv(out / "summary.csv", summary)
-    lines = ["| method | seeds | AUC success (95% CI) | AUC plan found (95% CI) | final success (95% CI) |",
-             "|---|---|---|---|---|"]
+    lines = ["| method | seeds | AUC success (95% CI) | AUC plan found (95% CI) | final success (95% CI) "
+             "| training goal reached (95% CI) |",
+             "|---|---|---|---|---|---|"]
     for s in summary:
         lines.append(f"| {s['method']} | {s['seeds']} | {s['auc_success']:.3f} ± {s['auc_success_ci95']:.3f} | "
                      f"{s['auc_plan_found']:.3f} ± {s['auc_plan_found_ci95']:.3f} | "
-                     f"{s['final_success']:.3f} ± {s['final_success_ci95']:.3f} |")
+                     f"{s['final_success']:.3f} ± {s['final_success_ci95']:.3f} | "
+                     f"{s['train_goal_reached']:.3f} ± {s['train_goal_reached_ci95']:.3f} |")
     (out / "summary.md").write_text("\n".join(lines) + "\n")
     made = {"learning_curves": str(out / "learning_curves.png"), "summary": summary, "table": "\n".join(lines)}
     cats = collect(dirs, "categories.csv")
