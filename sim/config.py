@@ -52,6 +52,9 @@ class SimConfig:
     arch: str = "cpu"  # cpu | gpu | auto
     deterministic: bool = True  # CPU: env-serial particle-to-grid transfer (bit reproducible)
     seed: int = 0  # particle jitter seed
+    #: initial particles: +- this fraction of the sub-cell spacing of uniform noise around a regular
+    #: sub-grid (per environment slot, seeded [seed, env]); 0 = a regular lattice in every slot
+    jitter: float = 0.25
 
     def __post_init__(self) -> None:
         self.domain = tuple(float(v) for v in self.domain)
@@ -79,6 +82,7 @@ class SimConfig:
                 raise ConfigError(f"sim.{name} = {getattr(self, name)!r} is invalid: allowed {allowed}")
 
         need(self.dim in (2, 3), "dim", "2 or 3")
+        need(0.0 <= self.jitter <= 0.5, "jitter", "[0, 0.5] (fraction of the particle spacing)")
         need(len(self.domain) == self.dim, "domain", f"a list of {self.dim} positive lengths in m")
         need(all(v > 0 and math.isfinite(v) for v in self.domain), "domain", "positive finite lengths in m")
         for name in ("dx", "dt", "rho", "sound_speed", "cfl"):

@@ -181,7 +181,7 @@ class DifferentiablePour:
             raise ConfigError(f"checkpoint_every = {checkpoint_every!r}: allowed an integer >= 1 (substeps)")
         self.K = int(min(K, self.max_substeps))
         sc = cfg.sim_config(1)
-        self.dx, self.ppc, self.seed = sc.dx, sc.ppc, sc.seed
+        self.dx, self.ppc, self.seed, self.jitter = sc.dx, sc.ppc, sc.seed, sc.jitter
         self._local_water = self._sample_local(1.0)
         self.N = max(len(w) for w in self._local_water)
         self.precision = precision
@@ -233,7 +233,7 @@ class DifferentiablePour:
             spec = EnvSpec(bodies=[Body("cup", pose=(0.0, 0.0, 0.0), shapes=cc.shapes())],
                            water=[WaterBlock((-cc.inner_width / 2, 0.0), (cc.inner_width / 2, cc.fill_height * fill),
                                              body="cup")])
-            out.append(sample_water(spec, self.dx, self.ppc, np.random.default_rng([self.seed, b])).astype(float))
+            out.append(sample_water(spec, self.dx, self.ppc, np.random.default_rng([self.seed, b]), self.jitter).astype(float))
         return out
 
     def check_params(self, params: np.ndarray, v_ctrl: np.ndarray | None = None,
@@ -302,7 +302,7 @@ class DifferentiablePour:
         cc = self.cfg.controlled_cup
         spec = EnvSpec(bodies=[Body("cup", shapes=cc.shapes())],
                        water=[WaterBlock((-cc.inner_width / 2, 0.0), (cc.inner_width / 2, cc.fill_height * fill), body="cup")])
-        return sample_water(spec, self.dx, self.ppc, np.random.default_rng([self.seed, b])).astype(float)
+        return sample_water(spec, self.dx, self.ppc, np.random.default_rng([self.seed, b]), self.jitter).astype(float)
 
     def _hard(self, x: np.ndarray, n: np.ndarray, end_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Hard fractions in the controlled / target cup (``MPMSolver.count_in_regions`` semantics)."""

@@ -128,7 +128,7 @@ class MPMSolver:
             if len(spec.bodies) > self.NB:
                 raise ConfigError(f"env {b}: {len(spec.bodies)} bodies > sim.max_bodies = {self.NB}")
             rng = np.random.default_rng([cfg.seed, b])
-            pts = sample_water(spec, cfg.dx, cfg.ppc, rng) if self.dim == 2 else _sample_nd(spec, cfg, rng)
+            pts = sample_water(spec, cfg.dx, cfg.ppc, rng, cfg.jitter) if self.dim == 2 else _sample_nd(spec, cfg, rng)
             if len(pts) > self.N:
                 raise ConfigError(f"env {b}: {len(pts)} particles > sim.max_particles = {self.N}; raise "
                                   f"sim.max_particles or use less water / a coarser sim.dx")
@@ -571,5 +571,5 @@ def _sample_nd(spec: EnvSpec, cfg: SimConfig, rng: np.random.Generator) -> np.nd
         grids = np.meshgrid(*[(a + 0.5) * (b1 - b0) / len(a) + b0 for a, b0, b1 in zip(axes, blk.lo, blk.hi)],
                             indexing="ij")
         pts = np.stack([g.ravel() for g in grids], 1)
-        out.append(pts + rng.uniform(-0.25 * h, 0.25 * h, size=pts.shape))
+        out.append(pts + rng.uniform(-cfg.jitter * h, cfg.jitter * h, size=pts.shape))
     return np.concatenate(out, 0).astype(np.float32) if out else np.zeros((0, cfg.dim), np.float32)

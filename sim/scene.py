@@ -113,8 +113,9 @@ class EnvSpec:
         raise KeyError(f"no body named {name!r}; bodies: {[b.name for b in self.bodies]}")
 
 
-def sample_water(spec: EnvSpec, dx: float, ppc: int, rng: np.random.Generator) -> np.ndarray:
-    """Particles on a jittered sub-grid (``ppc`` per cell) filling every water block; world frame."""
+def sample_water(spec: EnvSpec, dx: float, ppc: int, rng: np.random.Generator, jitter: float = 0.25) -> np.ndarray:
+    """Particles on a jittered sub-grid (``ppc`` per cell, +-``jitter`` of the sub-spacing) filling every
+    water block; world frame."""
     k = int(round(math.sqrt(ppc)))
     h = dx / k
     out = []
@@ -124,7 +125,8 @@ def sample_water(spec: EnvSpec, dx: float, ppc: int, rng: np.random.Generator) -
         gx, gy = np.meshgrid((np.arange(nx) + 0.5) * (x1 - x0) / nx + x0,
                              (np.arange(ny) + 0.5) * (y1 - y0) / ny + y0, indexing="ij")
         pts = np.stack([gx.ravel(), gy.ravel()], 1)
-        pts += rng.uniform(-0.25 * h, 0.25 * h, size=pts.shape)
+        if jitter > 0:
+            pts += rng.uniform(-jitter * h, jitter * h, size=pts.shape)
         if blk.body is not None:
             x, y, th = spec.bodies[spec.body_index(blk.body)].pose
             c, s = math.cos(th), math.sin(th)
