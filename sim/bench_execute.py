@@ -2,6 +2,7 @@
 resolution check of a reference pour.
 
     python -m sim.bench_execute [--n 32] [--actions 6] [--out benchmarks/execute.json] [--resolution]
+    python -m sim.bench_execute --skip-batch --spread --spread-dx 0.01 0.005 0.0025 --arch gpu
 """
 
 import argparse
@@ -43,16 +44,25 @@ OTHER_POURS = [("partial theta=1.3 hold=1.0", [move(0.31, 0.14), pour(1.3, 1.0)]
                ("full theta=2.2 hold=1.0", [move(0.31, 0.14), pour(2.2, 1.0)])]
 
 
-def resolution_check(cfg: WorldConfig, world: str = "source") -> dict:
+def at_resolution(cfg: WorldConfig, dx: float) -> WorldConfig:
+    """The same world at grid spacing dx: time step and particle room scaled, tank walls kept in metres
+    (so the floor, and every position measured from it, stays where it is)."""
+    f = cfg.sim["dx"] / dx
+    wall_m = cfg.sim_config(1).wall_cells * cfg.sim["dx"]
+    sim = dict(cfg.sim, dx=dx, dt=cfg.sim["dt"] / f, max_particles=int(cfg.sim["max_particles"] * f * f),
+               wall_cells=int(round(wall_m / dx)))
+    return WorldConfig.from_mapping({**cfg.__dict__, "sim": sim, "controlled_cup": cfg.controlled_cup.__dict__,
+                                     "target_cup": cfg.target_cup.__dict__})
+
+
+def resolution_check(cfg: WorldConfig, world: str = "source", arch: str | None = None) -> dict:
     """Fraction poured into the target cup at dx and dx/2 for the reference and other pours."""
     scripts = [REFERENCE_POUR] + OTHER_POURS
     per_dx = {}
     for factor in (1, 2):
         dx = cfg.sim["dx"] / factor
-        sim = dict(cfg.sim, dx=dx, dt=cfg.sim["dt"] / factor, max_particles=cfg.sim["max_particles"] * factor**2)
-        c = WorldConfig.from_mapping({**cfg.__dict__, "sim": sim, "controlled_cup": cfg.controlled_cup.__dict__,
-                                      "target_cup": cfg.target_cup.__dict__})
-        ex = PouringExecutor(c)
+        c = at_resolution(cfg, dx)
+        ex = PouringExecutor(c, arch=arch)
         t0 = time.perf_counter()
         res = ex.run(world, np.array([[0.42, 0.20]] * len(scripts)), [a for _, a in scripts])
         ex.close()
@@ -66,6 +76,29 @@ def resolution_check(cfg: WorldConfig, world: str = "source") -> dict:
             "reference_difference": diffs[REFERENCE_POUR[0]], "target_max_difference": 0.05}
 
 
+def outcome_spread(cfg: WorldConfig, dxs=(0.01, 0.005), n: int = 32, thetas=(1.35, 1.45), seed: int = 7,
+                   arch: str | None = None) -> list[dict]:
+    """How much does the same pour's outcome vary? ``move(0.32, 0.20), pour(theta, 0.5)`` run (a) from
+    one start in n environment slots (only the initial particle jitter differs) and (b) from n sampled
+    problem starts (different approach histories; trajectories stuck on the way are dropped), per grid
+    spacing. The tank walls keep their thickness in metres, so the geometry is the same at every dx."""
+    rows = []
+    for dx in dxs:
+        c = at_resolution(cfg, dx)
+        starts = np.array([p.start[:3] for p in sample_problems(c, n, seed)])
+        ex = PouringExecutor(c, arch=arch)
+        for th in thetas:
+            acts = [[move(0.32, 0.20), pour(th, 0.5)]] * n
+            same = ex.run("source", np.array([[0.42, 0.20, 0.0]] * n), acts)
+            appr = [r for r in ex.run("source", starts, acts) if not r.stuck]
+            a = np.array([r.states[-1, 4] for r in same])
+            b = np.array([r.states[-1, 4] for r in appr])
+            rows.append({"dx": dx, "theta": th, "slots_mean": float(a.mean()), "slots_std": float(a.std()),
+                         "approaches": len(b), "approaches_mean": float(b.mean()), "approaches_std": float(b.std())})
+        ex.close()
+    return rows
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(prog="python -m sim.bench_execute", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -75,6 +108,8 @@ def main(argv=None) -> None:
     ap.add_argument("--resolution", action="store_true", help="also run the resolution check")
     ap.add_argument("--skip-batch", action="store_true", help="only the resolution check")
     ap.add_argument("--arch", default=None, help="cpu | gpu | auto (default: the world config's)")
+    ap.add_argument("--spread", action="store_true", help="also measure the outcome spread of one pour")
+    ap.add_argument("--spread-dx", type=float, nargs="+", default=[0.01, 0.005])
     args = ap.parse_args(argv)
     cfg = WorldConfig.load()
     result = {}
@@ -86,7 +121,7 @@ def main(argv=None) -> None:
             print(f"  {k:14s} {100 * v:5.1f} %")
         print("  categories:", row["categories"])
     if args.resolution:
-        result["resolution"] = res = resolution_check(cfg)
+        result["resolution"] = res = resolution_check(cfg, arch=args.arch)
         d1, d2 = res["dx"]
         print(f"resolution check ({res['world']} world), fraction poured into the target cup (target |diff| <= 0.05):")
         print(f"  {'pour':30s} {f'dx={d1:g}':>10s} {f'dx={d2:g}':>10s} {'|diff|':>7s}")
@@ -94,6 +129,13 @@ def main(argv=None) -> None:
             a = res["runs"][str(d1)]["pours"][name]["in_target"]
             b = res["runs"][str(d2)]["pours"][name]["in_target"]
             print(f"  {name:30s} {a:10.3f} {b:10.3f} {diff:7.3f}")
+    if args.spread:
+        result["spread"] = rows = outcome_spread(cfg, args.spread_dx, arch=args.arch)
+        print("outcome spread of move(0.32, 0.20), pour(theta, 0.5): fraction into the target cup")
+        print(f"  {'dx':>7s} {'theta':>6s} {'slots mean':>11s} {'std':>6s} {'approaches':>11s} {'mean':>6s} {'std':>6s}")
+        for r in rows:
+            print(f"  {r['dx']:7.4f} {r['theta']:6.2f} {r['slots_mean']:11.3f} {r['slots_std']:6.3f} "
+                  f"{r['approaches']:11d} {r['approaches_mean']:6.3f} {r['approaches_std']:6.3f}")
     tmp = args.out + ".tmp"
     with open(tmp, "w") as f:
         json.dump(result, f, indent=1)
