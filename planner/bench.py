@@ -110,7 +110,8 @@ def plan_problems(planner: Planner, problems: list, seed: int) -> dict[str, Any]
 def run(problems: int = 30, seed: int = 0, mde: str = "auto", mde_points: int = 1200, beta: float = 2.0,
         d_max: float = 0.07, candidates: int = 9, candidate_problems: int = 5, unbatched_problems: int = 10,
         throughput_seconds: float = 0.5, time_budget: float | None = None,
-        config: PlannerConfig | None = None, dynamics_path: str | None = None) -> dict[str, Any]:
+        config: PlannerConfig | None = None, dynamics_path: str | None = None,
+        known_obstacles: bool = False) -> dict[str, Any]:
     config = (config or PlannerConfig()).replace(beta=beta, d_max=d_max, n_candidates=candidates)
     if time_budget is not None:
         config = config.replace(time_budget=time_budget)
@@ -122,8 +123,20 @@ def run(problems: int = 30, seed: int = 0, mde: str = "auto", mde_points: int = 
 
         dynamics = LearnedDynamics.load(dynamics_path)
         dyn_info = f"dynamics.LearnedDynamics ({dynamics_path})"
+    if known_obstacles:  # as the experiment runs it: contacts with the target cup and tank predicted
+        from dynamics import ContactAwareDynamics
+        from sim.world import WorldConfig
+
+        dynamics = ContactAwareDynamics(dynamics, WorldConfig.load())
+        dyn_info += " + ContactAwareDynamics (default world)"
     model, mde_info = build_mde(mde, mde_points, seed, config)
-    probs = sample_problems(problems, np.random.default_rng(seed + 1), config)
+    dist = None
+    if known_obstacles:  # the bench's wide start ranges put cups inside the tank floor or the target cup
+        from .config import ProblemDistribution
+
+        wp = WorldConfig.load().problems
+        dist = ProblemDistribution(start_x=tuple(wp["start_x"]), start_y=tuple(wp["start_y"]), goal=tuple(wp["goal"]))
+    probs = sample_problems(problems, np.random.default_rng(seed + 1), config, dist)
     planner = Planner(dynamics, model, config)
     planner.plan(probs[0].start, probs[0].goal, seed=10**6)  # warm-up (lazy torch/OMPL init)
 
@@ -234,6 +247,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--dynamics", default=None, metavar="CHECKPOINT",
                     help="a trained dynamics.LearnedDynamics checkpoint (e.g. .cache/dynamics/model-*/model.pt) "
                          "instead of the stand-in")
+    ap.add_argument("--known-obstacles", action="store_true",
+                    help="wrap the model with dynamics.ContactAwareDynamics, as experiment.known_obstacles does")
     ap.add_argument("--out", type=Path, default=None, help="write the full result as JSON here")
     args = ap.parse_args(argv)
     if args.problems < 1:
@@ -241,7 +256,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     r = run(problems=args.problems, seed=args.seed, mde=args.mde, mde_points=args.mde_points,
             beta=args.beta, d_max=args.d_max, candidates=args.candidates,
             candidate_problems=args.candidate_problems, unbatched_problems=args.unbatched_problems,
-            throughput_seconds=args.throughput_seconds, time_budget=args.time_budget, dynamics_path=args.dynamics)
+            throughput_seconds=args.throughput_seconds, time_budget=args.time_budget, dynamics_path=args.dynamics,
+            known_obstacles=args.known_obstacles)
     print(format_table(r))
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
