@@ -80,7 +80,7 @@ def plot_learning_curves(rows: list[dict], path: Path) -> None:
             mean = np.array([a for a, _ in mc])
             half = np.array([b for _, b in mc])
             ax.plot(its, mean, marker="o", ms=3, label=m)
-            ax.fill_between(its, mean - half, mean + half, alpha=0.2)
+            ax.fill_between(its, np.clip(mean - half, 0, 1), np.clip(mean + half, 0, 1), alpha=0.2)
         ax.set_xlabel("iteration")
         ax.set_title(title)
         ax.set_ylim(-0.02, 1.02)
