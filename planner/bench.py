@@ -123,19 +123,20 @@ def run(problems: int = 30, seed: int = 0, mde: str = "auto", mde_points: int = 
 
         dynamics = LearnedDynamics.load(dynamics_path)
         dyn_info = f"dynamics.LearnedDynamics ({dynamics_path})"
+    dist = None
     if known_obstacles:  # as the experiment runs it: contacts with the target cup and tank predicted
         from dynamics import ContactAwareDynamics
         from sim.world import WorldConfig
 
-        dynamics = ContactAwareDynamics(dynamics, WorldConfig.load())
-        dyn_info += " + ContactAwareDynamics (default world)"
-    model, mde_info = build_mde(mde, mde_points, seed, config)
-    dist = None
-    if known_obstacles:  # the bench's wide start ranges put cups inside the tank floor or the target cup
         from .config import ProblemDistribution
 
-        wp = WorldConfig.load().problems
+        world = WorldConfig.load()
+        dynamics = ContactAwareDynamics(dynamics, world)
+        dyn_info += " + ContactAwareDynamics (default world)"
+        # the bench's wide start ranges would put cups inside the tank floor or the target cup
+        wp = world.problems
         dist = ProblemDistribution(start_x=tuple(wp["start_x"]), start_y=tuple(wp["start_y"]), goal=tuple(wp["goal"]))
+    model, mde_info = build_mde(mde, mde_points, seed, config)
     probs = sample_problems(problems, np.random.default_rng(seed + 1), config, dist)
     planner = Planner(dynamics, model, config)
     planner.plan(probs[0].start, probs[0].goal, seed=10**6)  # warm-up (lazy torch/OMPL init)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .skills import CONTACT_MARGIN, MOVE, Obstacles, cup_boundary, to_world
+from .skills import CONTACT_MARGIN, MOVE, Obstacles, cup_boundary, tilt_about_lip, to_world
 from .world import WorldConfig, check_world
 
 
@@ -78,13 +78,7 @@ class ContactPredictor:
             out[move] = p0[move, None] + (goal - p0[move])[:, None] * u[move, :, None]
         pour = ~move
         if pour.any():
-            q, lx, ly = p0[pour], self.lip[0], self.lip[1]
-            c, s = np.cos(q[:, 2]), np.sin(q[:, 2])
-            px, py = q[:, 0] + c * lx - s * ly, q[:, 1] + s * lx + c * ly
-            phi = q[:, 2, None] + a[pour, 1, None] * u[pour]
-            out[pour, :, 0] = px[:, None] - (np.cos(phi) * lx - np.sin(phi) * ly)
-            out[pour, :, 1] = py[:, None] - (np.sin(phi) * lx + np.cos(phi) * ly)
-            out[pour, :, 2] = phi
+            out[pour] = tilt_about_lip(p0[pour], self.lip, p0[pour, 2, None] + a[pour, 1, None] * u[pour])
         return out
 
     def _clearance(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

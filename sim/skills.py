@@ -122,6 +122,17 @@ def to_world(points: np.ndarray, poses: np.ndarray) -> np.ndarray:
     return np.stack([x, y], -1)
 
 
+def tilt_about_lip(start: np.ndarray, lip: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """Cup poses (n, m, 3) when cups at ``start`` (n, 3) are turned about their pouring lip (body frame
+    point ``lip``) to absolute angles ``phi`` (n, m): origin = pivot - R(phi) lip, pivot fixed."""
+    c, s = np.cos(start[:, 2]), np.sin(start[:, 2])
+    px = start[:, 0] + c * lip[0] - s * lip[1]
+    py = start[:, 1] + s * lip[0] + c * lip[1]
+    ox = px[:, None] - (np.cos(phi) * lip[0] - np.sin(phi) * lip[1])
+    oy = py[:, None] - (np.sin(phi) * lip[0] + np.cos(phi) * lip[1])
+    return np.stack([ox, oy, phi], -1)
+
+
 # ---------------------------------------------------------------------------------- schedules
 @dataclass
 class Schedule:
@@ -155,16 +166,10 @@ def plan_schedule(cfg: WorldConfig, start: np.ndarray, actions: np.ndarray, obst
             theta, hold = float(a[1]), float(a[2])
             T = float(min_jerk_duration(theta, sk["pour"]["peak_rate"], min_time=h))
             n = int(np.ceil(T / h))
-            c, s = math.cos(p0[2]), math.sin(p0[2])
-            pivot = p0[:2] + np.array([c * lip[0] - s * lip[1], s * lip[0] + c * lip[1]])
             tilt = theta * min_jerk(np.arange(1, n + 1) * h / T)
             back = theta * (1 - min_jerk(np.arange(1, n + 1) * h / T))
             angles = np.concatenate([tilt, np.full(int(round(hold / h)), theta), back])
-            phi = p0[2] + angles
-            # origin = pivot + R(phi) (-lip)
-            ox = pivot[0] - (np.cos(phi) * lip[0] - np.sin(phi) * lip[1])
-            oy = pivot[1] - (np.sin(phi) * lip[0] + np.cos(phi) * lip[1])
-            seg = np.stack([ox, oy, phi], 1)
+            seg = tilt_about_lip(p0[None], lip, (p0[2] + angles)[None])[0]
         d, idx = obstacles.sdf(to_world(boundary, seg).reshape(-1, 2))
         d, idx = d.reshape(len(seg), -1), idx.reshape(len(seg), -1)
         hit = np.flatnonzero(d.min(1) < CONTACT_MARGIN)
