@@ -33,6 +33,10 @@ class ExperimentConfig:
     #: test_success_refined beside test_success (unrefined). Costs ~30 s per step for 8 pours on 2 cores
     refine_steps: int = 0
     refine_lr: float = 0.05
+    #: the planner accepts a predicted end state whose |v_tgt - goal| is within this (null: the world's goal
+    #: tolerance). Smaller aims plans at the middle of the goal band, so that the executed pour, which
+    #: scatters about the prediction, still lands inside the protocol's tolerance (not changed by this)
+    plan_goal_tol: float | None = None
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], method: str = "all") -> "ExperimentConfig":
@@ -73,6 +77,9 @@ class ExperimentConfig:
             raise ValueError(f"experiment.refine_lr = {self.refine_lr!r}: allowed > 0")
         if not isinstance(self.known_obstacles, bool):
             raise ValueError(f"experiment.known_obstacles = {self.known_obstacles!r}: allowed true or false")
+        if self.plan_goal_tol is not None and not 0 < self.plan_goal_tol <= 1:
+            raise ValueError(f"experiment.plan_goal_tol = {self.plan_goal_tol!r}: allowed null or a fraction in (0, 1] "
+                             f"(at most world.problems.tolerance)")
         if not self.planner_time_budget > 0:
             raise ValueError(f"experiment.planner_time_budget = {self.planner_time_budget}: allowed > 0 s")
 

@@ -1,44 +1,26 @@
-"""Atomic file writes: a run killed at any moment leaves either the old or the new file, never half."""
+"""Files of a run directory: atomic writes (through :mod:`safeio`) and reads with clear errors.
+
+A run killed at any moment leaves either the old or the new file, never half of one; a file that is
+nevertheless unreadable (a disk problem, a copy cut short) is reported with its path and what to do
+instead of a raw unpickling or zip-reader error.
+"""
 
 from __future__ import annotations
 
 import csv
 import io
-import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-import torch
+import safeio
 
 
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+class RunFileError(RuntimeError):
+    """A file in a run directory cannot be used; the message names it and says what to do."""
 
 
 def write_json(path: Path, obj: Any) -> None:
-    _atomic_write_bytes(path, json.dumps(obj, indent=1, default=_json_default).encode())
-
-
-def _json_default(o: Any) -> Any:
-    if hasattr(o, "tolist"):
-        return o.tolist()
-    if hasattr(o, "item"):
-        return o.item()
-    raise TypeError(f"not JSON serialisable: {type(o)}")
+    safeio.write_json(path, obj, indent=1)
 
 
 def write_csv(path: Path, rows: Sequence[Mapping[str, Any]], fields: Sequence[str] | None = None) -> None:
@@ -47,7 +29,7 @@ def write_csv(path: Path, rows: Sequence[Mapping[str, Any]], fields: Sequence[st
     w = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
     w.writeheader()
     w.writerows(rows)
-    _atomic_write_bytes(path, buf.getvalue().encode())
+    safeio.write_text(path, buf.getvalue())
 
 
 def read_csv(path: Path) -> list[dict[str, str]]:
@@ -56,13 +38,30 @@ def read_csv(path: Path) -> list[dict[str, str]]:
 
 
 def save_torch(path: Path, obj: Any) -> None:
-    buf = io.BytesIO()
-    torch.save(obj, buf)
-    _atomic_write_bytes(path, buf.getvalue())
+    safeio.save_torch(path, obj)
 
 
-def load_torch(path: Path) -> Any:
-    return torch.load(path, weights_only=False)
+def load_torch(path: Path, fix: str = "delete it and run the same command again") -> Any:
+    """``torch.load`` of a file this runner wrote; any failure names the file and says ``fix``."""
+    import torch
+
+    path = Path(path)
+    if not path.is_file():
+        raise RunFileError(f"{path} does not exist; {fix}")
+    try:
+        return torch.load(path, weights_only=False, map_location="cpu")
+    except Exception as e:  # noqa: BLE001 - every reader failure means the same thing: unusable file
+        raise RunFileError(f"{path} is unreadable ({describe_load_error(e)}); {fix}") from None
+
+
+def describe_load_error(e: BaseException) -> str:
+    """A short reason for a failed ``torch.load``, without torch's advice to load unsafely."""
+    first = (str(e).strip().splitlines() or [""])[0]
+    if "weights_only" in str(e) or type(e).__name__ == "UnpicklingError":
+        return f"not a torch file written by this code ({type(e).__name__})"
+    if isinstance(e, OSError) or "zip" in first.lower() or "central directory" in first:
+        return f"truncated or damaged ({type(e).__name__}: {first[:160]})"
+    return f"{type(e).__name__}: {first[:160]}"
 
 
 def concat_rows(groups: Iterable[Sequence[Mapping[str, Any]]]) -> list[dict[str, Any]]:

@@ -26,6 +26,7 @@ from typing import Any, Mapping
 import numpy as np
 import torch
 
+import safeio
 from planner import ActionSampler, Planner, PlannerConfig, features
 from sim.execute import PouringExecutor
 from sim.problems import Problem, sample_problems
@@ -56,14 +57,30 @@ def derive_seed(*keys: Any) -> int:
     return int(np.random.SeedSequence(ints).generate_state(1)[0])
 
 
-def config_digest(cfg: Mapping[str, Any]) -> str:
-    """Hash of everything that determines results (not run length, logging or progress bars)."""
+def comparable_config(cfg: Mapping[str, Any]) -> dict:
+    """The part of a config that determines results: not run length, logging, progress bars, nor
+    where the dynamics cache lives (moving the cache must not make a finished run unresumable)."""
     c = json.loads(json.dumps(cfg, default=str))
     for k in ("iterations", "methods"):
         c.get("experiment", {}).pop(k, None)
+    for k in ("cache_root", "progress"):
+        c.get("dynamics", {}).pop(k, None)
     for k in ("wandb", "progress", "method"):
         c.pop(k, None)
-    return hashlib.sha256(json.dumps(c, sort_keys=True).encode()).hexdigest()[:16]
+    for k, off in NEUTRAL_EXPERIMENT_SETTINGS.items():  # a setting added later, at its "off" value
+        if k in c.get("experiment", {}) and c["experiment"][k] == off:
+            c["experiment"].pop(k)
+    return c
+
+
+#: experiment keys added after runs existed, with the value that changes nothing: left out of the digest
+#: so that a directory written before the key existed still resumes
+NEUTRAL_EXPERIMENT_SETTINGS = {"plan_goal_tol": None}
+
+
+def config_digest(cfg: Mapping[str, Any]) -> str:
+    """Hash of everything that determines results (:func:`comparable_config`)."""
+    return hashlib.sha256(json.dumps(comparable_config(cfg), sort_keys=True).encode()).hexdigest()[:16]
 
 
 @dataclass
@@ -82,6 +99,8 @@ class Context:
     seed: int
     progress: bool = True
     timings: dict = field(default_factory=dict)
+    #: state digests this run may resume besides its own (legacy digests; see active.rundir.accepted_digests)
+    accepted_digests: frozenset = frozenset()
 
 
 def build_planner_config(world: WorldConfig, planner: Mapping[str, Any], exp: ExperimentConfig) -> PlannerConfig:
@@ -91,7 +110,7 @@ def build_planner_config(world: WorldConfig, planner: Mapping[str, Any], exp: Ex
     d.pop("_target_", None)
     d.update(move_x=list(sk["move"]["x"]), move_y=list(sk["move"]["y"]), pour_theta=list(sk["pour"]["theta"]),
              pour_hold=list(sk["pour"]["hold"]), max_actions=int(sk["max_actions"]),
-             goal_tol=float(world.problems["tolerance"]), spill_limit=float(world.problems["max_spill"]),
+             goal_tol=_plan_goal_tol(world, exp), spill_limit=float(world.problems["max_spill"]),
              d_max=exp.d_max, n_candidates=exp.candidates, propagation_budget=exp.planner_propagation_budget,
              time_budget=exp.planner_time_budget)
     lo, hi = list(d["state_low"]), list(d["state_high"])
@@ -100,6 +119,17 @@ def build_planner_config(world: WorldConfig, planner: Mapping[str, Any], exp: Ex
     hi[2] = max(hi[2], sk["pour"]["theta"][1])
     d["state_low"], d["state_high"] = lo, hi
     return PlannerConfig.from_dict(d)
+
+
+def _plan_goal_tol(world: WorldConfig, exp: ExperimentConfig) -> float:
+    """The planner's goal band: the world's tolerance, or the experiment's narrower plan_goal_tol."""
+    tol = float(world.problems["tolerance"])
+    if exp.plan_goal_tol is None:
+        return tol
+    if exp.plan_goal_tol > tol:
+        raise ValueError(f"experiment.plan_goal_tol = {exp.plan_goal_tol}: allowed (0, {tol}] "
+                         f"(world.problems.tolerance; success is always judged with the world's tolerance)")
+    return float(exp.plan_goal_tol)
 
 
 def label_transitions(dynamics: Any, s: np.ndarray, a: np.ndarray, s_next: np.ndarray,
@@ -161,16 +191,16 @@ class MethodRun:
 
     # ------------------------------------------------------------------ persistence
     def _resume(self, path: Path) -> None:
-        try:
-            st = load_torch(path)
-        except Exception as e:
-            raise RuntimeError(f"{path} is unreadable ({e}); delete it to restart this method from scratch") from None
-        if st.get("digest") != self.state["digest"]:
+        from .rundir import load_mde_checkpoint, state_fix
+
+        st = load_torch(path, fix=state_fix(path))
+        if st.get("digest") != self.state["digest"] and st.get("digest") not in self.ctx.accepted_digests:
             raise RuntimeError(f"{path} was written by a run with a different configuration; use a new output "
                                f"directory (hydra.run.dir=...) or delete {self.dir} to restart this method")
+        st["digest"] = self.state["digest"]  # an accepted legacy digest: saved as the current one from now on
         self.state = st
         if st["mde_path"]:
-            self.mde = type(self.mde).load(self.dir / st["mde_path"])
+            self.mde = load_mde_checkpoint(type(self.mde), self.dir / st["mde_path"], self.mde, st["X"], path)
         log.info("%s: resuming after iteration %d", self.method, st["completed"])
 
     def _save(self, iteration: int) -> None:
@@ -178,6 +208,7 @@ class MethodRun:
         if getattr(self.mde, "is_fitted", False):
             mde_name = f"mde_iter{iteration:03d}.pt"
             self.mde.save(self.dir / mde_name)
+            safeio.adopt(self.dir / mde_name)  # the MDE's own writer neither fsyncs nor respects the umask
         self.state["mde_path"] = mde_name
         self.state["completed"] = iteration
         save_torch(self.dir / "dataset.pt", {"X": self.state["X"], "y": self.state["y"],

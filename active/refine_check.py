@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+import safeio
+
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
@@ -134,9 +136,7 @@ def main(argv=None) -> None:
         print(f"  refined {res['refined_pours']} pours in {res['refine_seconds']:.0f} s; "
               f"simulator loss {res['sim_loss_before']:.4f} -> {res['sim_loss_after']:.4f}")
     path = args.out or args.run_dir / "refine_check.json"
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(res, indent=1, default=float))
-    os.replace(tmp, path)
+    safeio.write_json(path, res, indent=1, default=float)
     print(f"wrote {path}")
 
 

@@ -27,6 +27,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
+import safeio  # noqa: E402
 from .io import read_csv, write_csv  # noqa: E402
 
 CATEGORY_ORDER = ("successful_pour", "unsuccessful_pour", "stuck_in_plant", "other")
@@ -88,7 +89,7 @@ def plot_learning_curves(rows: list[dict], path: Path) -> None:
     axes[0].set_ylabel("rate (mean, 95% CI over seeds)")
     axes[-1].legend(fontsize=8, loc="upper left")
     fig.tight_layout()
-    fig.savefig(path)
+    safeio.save_figure(fig, path)
     plt.close(fig)
 
 
@@ -109,7 +110,7 @@ def plot_trajectory_types(rows: list[dict], path: Path) -> dict[str, dict[str, f
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1, 1))
     plt.setp(ax.get_xticklabels(), rotation=20, ha="right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path)
+    safeio.save_figure(fig, path)
     plt.close(fig)
     return ratios
 
@@ -130,7 +131,7 @@ def plot_calibration(rows: list[dict], path: Path) -> None:
         ax.grid(alpha=0.3)
     axes[1].legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path)
+    safeio.save_figure(fig, path)
     plt.close(fig)
 
 
@@ -174,7 +175,7 @@ def report(dirs: Sequence[Path], out: Path) -> dict:
                      f"{s['auc_plan_found']:.3f} ± {s['auc_plan_found_ci95']:.3f} | "
                      f"{s['final_success']:.3f} ± {s['final_success_ci95']:.3f} | "
                      f"{s['train_goal_reached']:.3f} ± {s['train_goal_reached_ci95']:.3f} |")
-    (out / "summary.md").write_text("\n".join(lines) + "\n")
+    safeio.write_text(out / "summary.md", "\n".join(lines) + "\n")
     made = {"learning_curves": str(out / "learning_curves.png"), "summary": summary, "table": "\n".join(lines)}
     cats = collect(dirs, "categories.csv")
     if cats:

@@ -7,7 +7,8 @@
 Writes, under the run directory (``outputs/<experiment>/<method>/seed<seed>`` by default; running the
 same command again resumes it): the resolved config, per method ``results.csv``, ``categories.csv``,
 ``calibration.csv``, ``dataset.pt``, MDE checkpoints and ``state.pt``, and the figures of
-``active.report`` in ``report/``.
+``active.report`` in ``report/``. ``run.lock`` names the run writing the directory (a second run
+into it is refused; a killed one's lock is taken over).
 """
 
 from __future__ import annotations
@@ -27,7 +28,13 @@ log = logging.getLogger("active.run")
 
 
 def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
-    """Run (or resume) every method of ``cfg`` into ``out_dir``; returns the report summary."""
+    """Run (or resume) every method of ``cfg`` into ``out_dir``; returns the report summary.
+
+    Order matters: every check runs before any compute (config values, the resolution against the
+    geometry, the output and cache locations' writability); then the directory is locked (one
+    writer per run directory) and what it holds is checked against ``cfg``; ``config.json`` is
+    written only once the directory is accepted.
+    """
     import torch
     from hydra.utils import instantiate
 
@@ -38,22 +45,26 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     from sim.world import WorldConfig
 
     from .experiment import ExperimentConfig
-    from .io import load_torch, save_torch, write_json
+    from .io import write_json
     from .loop import (Context, MethodRun, acquisition_factory, build_planner_config, derive_seed,
                        make_calibration_set)
+    from .preflight import check_dynamics, check_geometry, check_seed, check_writable
     from .report import report
+    from .rundir import check_run_directory, clean_leftovers, load_calibration, save_calibration
+    from .runlock import RunLock
     from .tracking import Tracker
 
     t0 = time.perf_counter()
     cfg = dict(cfg)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    seed = int(cfg["seed"])
+    # ---- validate everything before any compute (and before touching the output directory)
+    seed = check_seed(cfg.get("seed"))
     progress = bool(cfg.get("progress", True))
-    # ---- validate everything before any compute
     exp = ExperimentConfig.from_mapping(cfg["experiment"], method=str(cfg.get("method", "all")))
     world = WorldConfig.from_mapping(cfg["world"])
+    check_geometry(world)
     planner_cfg = build_planner_config(world, cfg["planner"], exp)
+    check_seed(planner_cfg.seed, "planner.seed")
     make_acq = acquisition_factory(cfg["acquisition"], exp)
     mde_cfg = dict(cfg["mde"])
 
@@ -64,35 +75,42 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     wandb_cfg = dict(cfg.get("wandb", {}))
     if wandb_cfg.get("mode", "offline") not in ("offline", "online", "disabled"):
         raise ValueError(f"wandb.mode = {wandb_cfg.get('mode')!r}: allowed one of ('offline', 'online', 'disabled')")
-    write_json(out / "config.json", cfg)
-    torch.manual_seed(seed)
-
-    # ---- shared pieces: dynamics model (cached by config hash), simulator, problems, held-out data
-    log.info("dynamics model: loading from cache or training (source world only)")
-    dyn = dynamics.load_or_train(cfg["dynamics"], world_cfg=cfg["world"], progress=progress)
-    if exp.known_obstacles:
-        dyn = dynamics.ContactAwareDynamics(dyn, world)
-    executor = PouringExecutor(world)
+    check_dynamics(cfg["dynamics"], cfg["world"])  # its config; the cache is writable if the model must be trained
     test_problems = sample_problems(world, exp.test_problems, derive_seed(seed, "test"), world="target")
-    cal_path = out / "calibration_set.pt"
-    if cal_path.exists():
-        calibration = load_torch(cal_path)
-    else:
-        calibration = make_calibration_set(world, dyn, executor, ActionSampler(planner_cfg),
-                                           exp.calibration_trajectories, exp.random_actions_length, seed)
-        save_torch(cal_path, calibration)
-    ctx = Context(cfg=cfg, exp=exp, world=world, planner_cfg=planner_cfg, dynamics=dyn, executor=executor,
-                  test_problems=test_problems, calibration=calibration, out=out, seed=seed, progress=progress)
-    for method in exp.methods:
-        tracker = Tracker(wandb_cfg.get("mode", "offline"), wandb_cfg.get("project", "active-mde"),
-                          f"{exp.name}-{method}-seed{seed}", cfg, out, entity=wandb_cfg.get("entity"),
-                          group=f"{exp.name}-seed{seed}")
-        MethodRun(ctx, method, make_mde, make_acq, tracker).run()
-        made = report([out], out / "report")  # after every method: figures for W&B and partial runs
-        tracker.log_images({"learning_curves": out / "report" / "learning_curves.png",
-                            "trajectory_types": out / "report" / "trajectory_types.png"})
-        tracker.finish()
-    executor.close()
+    check_writable([out])
+
+    with RunLock(out):  # one writer per run directory; released however this block ends
+        check_writable([out / m for m in exp.methods] + [out / "report"])
+        clean_leftovers(out)
+        accepted, resumable = check_run_directory(out, cfg)
+        cal_path = out / "calibration_set.pt"
+        calibration = load_calibration(cal_path, cfg, accepted, trust_untagged=resumable)  # None: (re)build it
+        write_json(out / "config.json", cfg)  # only now: a refused run leaves the directory's record alone
+        torch.manual_seed(seed)
+
+        # ---- shared pieces: dynamics model (cached by config hash), simulator, problems, held-out data
+        log.info("dynamics model: loading from cache or training (source world only)")
+        dyn = dynamics.load_or_train(cfg["dynamics"], world_cfg=cfg["world"], progress=progress)
+        if exp.known_obstacles:
+            dyn = dynamics.ContactAwareDynamics(dyn, world)
+        executor = PouringExecutor(world)
+        if calibration is None:
+            calibration = save_calibration(cal_path, make_calibration_set(
+                world, dyn, executor, ActionSampler(planner_cfg), exp.calibration_trajectories,
+                exp.random_actions_length, seed), cfg)
+        ctx = Context(cfg=cfg, exp=exp, world=world, planner_cfg=planner_cfg, dynamics=dyn, executor=executor,
+                      test_problems=test_problems, calibration=calibration, out=out, seed=seed, progress=progress,
+                      accepted_digests=accepted)
+        for method in exp.methods:
+            tracker = Tracker(wandb_cfg.get("mode", "offline"), wandb_cfg.get("project", "active-mde"),
+                              f"{exp.name}-{method}-seed{seed}", cfg, out, entity=wandb_cfg.get("entity"),
+                              group=f"{exp.name}-seed{seed}")
+            MethodRun(ctx, method, make_mde, make_acq, tracker).run()
+            made = report([out], out / "report")  # after every method: figures for W&B and partial runs
+            tracker.log_images({"learning_curves": out / "report" / "learning_curves.png",
+                                "trajectory_types": out / "report" / "trajectory_types.png"})
+            tracker.finish()
+        executor.close()
     print(made["table"])
     print(f"results and figures in {out} ({time.perf_counter() - t0:.0f} s)")
     return made

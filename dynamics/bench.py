@@ -14,7 +14,6 @@ and writes JSON.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
@@ -23,6 +22,8 @@ from typing import Any, Callable
 
 import numpy as np
 import torch
+
+import safeio
 
 from .model import LearnedDynamics
 
@@ -127,10 +128,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
               "cpu_count": os.cpu_count(), "torch": torch.__version__, "machine": platform.machine(),
               "load_average": os.getloadavg()}
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
-    tmp.write_text(json.dumps(result, indent=1))
-    tmp.replace(out)
+    safeio.write_json(out, result, indent=1)
     print(f"wrote {out}")
     return result
 

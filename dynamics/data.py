@@ -9,7 +9,7 @@ environment went numerically unstable.
 
 File format (``torch.save`` of plain tensors, loadable with ``weights_only=True``): a dict with
 ``format``, ``version``, ``arrays`` (name -> tensor) and ``meta`` (a JSON string: config, seed,
-counts, wall time). Writes are atomic (temporary file + ``os.replace``).
+counts, wall time). Writes are atomic and fsync-ed (:mod:`safeio`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +24,8 @@ from typing import Any
 
 import numpy as np
 import torch
+
+import safeio
 
 from .config import DATA_FORMAT_VERSION, TRAIN_COMMAND, DataConfig, DynamicsError
 
@@ -117,7 +118,7 @@ class Transitions:
 
     # ------------------------------------------------------------------ files
     def save(self, path: str | Path) -> Path:
-        """Atomic write (temporary file in the same folder + ``os.replace``)."""
+        """Atomic write (:mod:`safeio`: temporary file in the same folder, fsync, ``os.replace``)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         payload = {"format": DATASET_FORMAT, "version": DATA_FORMAT_VERSION,
@@ -170,25 +171,11 @@ def load_tagged(path: Path, what: str, fmt: str, version: int, redo: str, do: st
 
 
 def atomic_torch_save(obj: Any, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        torch.save(obj, tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    """Atomic, fsync-ed ``torch.save`` with the umask's permissions (the project's one writer, :mod:`safeio`)."""
+    safeio.save_torch(path, obj)
 
 
-def _json_default(o: Any) -> Any:
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.floating,)):
-        return float(o)
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, tuple):
-        return list(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+_json_default = safeio.json_default
 
 
 # ---------------------------------------------------------------------------------- sampling
@@ -312,15 +299,18 @@ def generate_transitions(data: DataConfig, world: str = "source", n_batches: int
     world_code = 0 if world == "source" else 1
     bar = tqdm(range(n_batches), desc=f"dynamics data ({world} world, {B} x <= {data.max_actions} actions)",
                unit="batch", disable=not progress)
+    ident = shard_identity(data, wcfg) if shard_dir else None
     for b in bar:
         shard = shard_dir / f"batch{b:04d}.pt" if shard_dir else None
         if shard is not None and shard.is_file():
             try:
                 part = Transitions.load(shard)
-                if part.meta.get("shard_key") == [seed, b, world, B, keep_all_stuck]:
+                if part.meta.get("shard_key") == [seed, b, world, B, keep_all_stuck] and \
+                        part.meta.get("config") == ident:
                     parts.append(part)
                     _add_counts(counts, part.meta["counts"])
                     continue
+                log.warning("regenerating shard %s: another configuration made it", shard)
             except DynamicsError as e:
                 log.warning("ignoring unreadable shard %s: %s", shard, e)
         rng = np.random.default_rng([seed, b, world_code])
@@ -332,7 +322,7 @@ def generate_transitions(data: DataConfig, world: str = "source", n_batches: int
         results = ex.run(world, np.array(starts), list(seqs), plant_jitter=jit if world == "target" else None)
         part, c = _collect(results, jit, traj_offset=b * B)
         c["sim_seconds"] = float(ex.last_timing.get("sim_seconds", 0.0))
-        part.meta = {"shard_key": [seed, b, world, B, keep_all_stuck], "counts": c}
+        part.meta = {"shard_key": [seed, b, world, B, keep_all_stuck], "config": ident, "counts": c}
         if shard is not None:
             part.save(shard)
         parts.append(part)
@@ -345,6 +335,18 @@ def generate_transitions(data: DataConfig, world: str = "source", n_batches: int
                 "data_config": _plain_data(data)}
     out.validate()
     return out
+
+
+def shard_identity(data: DataConfig, wcfg: Any) -> str:
+    """Digest of what a batch's content depends on besides its key: the generator fields (not the
+    batch count) and the world, so a shard left by another configuration is never reused."""
+    from .config import _digest, solver_dict, world_dict
+
+    d = _plain_data(data)
+    for k in ("world", "n_batches"):
+        d.pop(k, None)
+    return _digest({"format": DATA_FORMAT_VERSION, "data": d, "world": world_dict(data, wcfg),
+                    "solver": solver_dict(data, wcfg)})
 
 
 def generate_source_dataset(cfg: Any, shard_dir: str | Path | None = None, progress: bool = True,

@@ -20,13 +20,14 @@ Writes ``DIR/dynamics_eval.json`` (all numbers, definitions, config), ``DIR/dyna
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import shutil
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+import safeio
 
 from .config import DynamicsConfig, _digest, _plain, data_hash
 from .data import CLEARANCE_CAP, Transitions, generate_transitions, load_world, plant_clearance
@@ -58,13 +59,14 @@ def eval_sets(cfg: DynamicsConfig, cache_root: str | Path | None = None, world_c
             continue
         path = folder / f"{world}.pt"
         with _locked(folder):
+            safeio.remove_orphans(folder)  # left by a writer killed mid-write
             if not path.is_file():
                 # natural distribution in evaluation: keep every stuck sequence
                 ds = generate_transitions(cfg.data, world, n_batches=n, seed=cfg.eval.seed, keep_all_stuck=True,
                                           progress=cfg.progress, shard_dir=folder / f"parts-{world}",
                                           meta={"eval_key": key}, world_cfg=world_cfg)
                 ds.save(path)
-                shutil.rmtree(folder / f"parts-{world}", ignore_errors=True)
+            shutil.rmtree(folder / f"parts-{world}", ignore_errors=True)  # also after a kill right after saving
         out[world] = Transitions.load(path)
     return out
 
@@ -161,10 +163,8 @@ def plot(result: dict[str, Any], path: Path) -> None:
         ax.set_title("target world: deviation vs distance to the plant")
         ax.legend(fontsize=8)
     fig.tight_layout()
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
+    safeio.save_figure(fig, path, dpi=110)
     plt.close(fig)
-    tmp.replace(path)
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -179,9 +179,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     result = evaluate(cfg)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    tmp = out / ".dynamics_eval.json.tmp"
-    tmp.write_text(json.dumps(result, indent=1, default=_plain))
-    tmp.replace(out / "dynamics_eval.json")
+    safeio.write_json(out / "dynamics_eval.json", result, indent=1, default=_plain)
     plot(result, out / "dynamics_eval.png")
     print(f"model {result['model_hash']} (data {result['data_hash']}); eval sets: {result['eval_sets']}")
     for g in GROUPS:

@@ -18,7 +18,6 @@ from __future__ import annotations
 import contextlib
 import copy
 import fcntl
-import json
 import logging
 import shutil
 import sys
@@ -28,6 +27,8 @@ from typing import Any, Callable, Iterator, Mapping
 
 import numpy as np
 import torch
+
+import safeio
 
 from .config import (TRAIN_COMMAND, DataConfig, DynamicsConfig, DynamicsError, ModelConfig, TrainConfig,
                      data_hash, model_hash)
@@ -204,32 +205,32 @@ def cache_paths(cfg: DynamicsConfig | Mapping[str, Any] | None = None,
             "dataset": root / f"data-{dh}" / "dataset.pt", "checkpoint": root / f"model-{mh}" / "model.pt"}
 
 
-def _write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
-
-
 def load_or_generate_dataset(cfg: DynamicsConfig | Mapping[str, Any] | None = None,
                              cache_root: str | Path | None = None, generator: Generator | None = None,
-                             progress: bool | None = None, world_cfg: Any = None) -> Transitions:
+                             progress: bool | None = None, world_cfg: Any = None,
+                             use_shipped: bool = True) -> Transitions:
     """The source-world training data for ``cfg``: loaded from the cache, generated only when missing.
 
     ``generator(cfg, shard_dir=..., progress=..., world_cfg=...) -> Transitions`` defaults to
-    :func:`dynamics.data.generate_source_dataset` (the simulator).
+    :func:`dynamics.data.generate_source_dataset` (the simulator). With the default generator and
+    ``use_shipped``, a dataset shipped with the package for the same data hash
+    (:mod:`dynamics.shipped`) is copied into the cache instead of simulating it.
     """
-    import yaml
-
     from . import data as data_mod
 
     c = _as_config(cfg)
     p = cache_paths(c, cache_root, world_cfg)
     path, dh = p["dataset"], p["data_hash"]
-    if not path.is_file():
-        with _locked(path.parent):
+    folder, shard_dir = path.parent, path.parent / "parts"
+    if not path.is_file() or _unfinished_data(path):
+        with _locked(folder):
+            _remove_orphans(folder, shard_dir)
+            if not path.is_file() and generator is None and use_shipped:
+                from .shipped import install_shipped
+
+                install_shipped(path, dh)
             if not path.is_file():
                 gen = generator or data_mod.generate_source_dataset
-                shard_dir = path.parent / "parts"
                 ds = gen(c, shard_dir=shard_dir, progress=c.progress if progress is None else progress,
                          world_cfg=world_cfg)
                 if len(ds) == 0:
@@ -237,14 +238,27 @@ def load_or_generate_dataset(cfg: DynamicsConfig | Mapping[str, Any] | None = No
                                         "check the world config or change data.seed")
                 ds.meta = {**ds.meta, "data_hash": dh, "config": c.to_dict()}
                 ds.save(path)
-                _write_text(path.parent / "config.yaml", yaml.safe_dump({"data": c.to_dict()["data"], "data_hash": dh}))
-                shutil.rmtree(shard_dir, ignore_errors=True)
                 log.info("wrote %s (%d transitions)", path, len(ds))
+            _finish_data(path, c, dh)
     ds = Transitions.load(path, expected_hash=dh)
     if ds.meta.get("world", "source") != "source":
         raise DynamicsError(f"{path} holds {ds.meta.get('world')}-world data; the dynamics model is trained on the "
                             f"source world only. Delete it and regenerate with `{TRAIN_COMMAND}`")
     return ds
+
+
+def _unfinished_data(path: Path) -> bool:
+    """The dataset's folder lacks its config.yaml or still has parts/ (a writer killed right after saving)."""
+    return not (path.parent / "config.yaml").is_file() or (path.parent / "parts").exists()
+
+
+def _finish_data(path: Path, c: DynamicsConfig, dh: str) -> None:
+    """Write the dataset folder's config.yaml and drop its shards (call with the folder's lock held)."""
+    import yaml
+
+    if not (path.parent / "config.yaml").is_file():
+        safeio.write_text(path.parent / "config.yaml", yaml.safe_dump({"data": c.to_dict()["data"], "data_hash": dh}))
+    shutil.rmtree(path.parent / "parts", ignore_errors=True)
 
 
 def load_or_train(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_root: str | Path | None = None,
@@ -262,8 +276,14 @@ def load_or_train(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_r
     c = _as_config(cfg)
     p = cache_paths(c, cache_root, world_cfg)
     ckpt, mh = p["checkpoint"], p["model_hash"]
-    if not ckpt.is_file():
-        with _locked(ckpt.parent):
+    folder = ckpt.parent
+    if p["dataset"].is_file() and _unfinished_data(p["dataset"]):  # finish it even when the model is cached
+        with _locked(p["dataset"].parent):
+            _remove_orphans(p["dataset"].parent, p["dataset"].parent / "parts")
+            _finish_data(p["dataset"], c, p["data_hash"])
+    if not ckpt.is_file() or not (folder / "metrics.json").is_file():
+        with _locked(folder):
+            _remove_orphans(folder)
             if not ckpt.is_file():
                 ds = load_or_generate_dataset(c, p["root"], generator, progress, world_cfg)
                 model = fit(ds, c.model, c.train, progress=c.progress if progress is None else progress,
@@ -272,12 +292,22 @@ def load_or_train(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_r
                                    "dataset": {"path": str(p["dataset"]), **ds.summary(),
                                                "generation_wall_seconds": ds.meta.get("wall_seconds")}})
                 model.save(ckpt)
-                _write_text(ckpt.parent / "config.yaml", yaml.safe_dump({**c.to_dict(), "model_hash": mh,
-                                                                         "data_hash": p["data_hash"]}))
-                metrics = {k: v for k, v in model.info["training"].items() if k != "history"}
-                _write_text(ckpt.parent / "metrics.json", json.dumps(metrics, indent=1))
                 log.info("wrote %s", ckpt)
+            # also finishes a directory whose writer was killed after saving the checkpoint
+            if not (folder / "config.yaml").is_file() or not (folder / "metrics.json").is_file():
+                info = LearnedDynamics.load(ckpt, expected_hash=mh).info
+                safeio.write_text(folder / "config.yaml",
+                                  yaml.safe_dump({**c.to_dict(), "model_hash": mh, "data_hash": p["data_hash"]}))
+                metrics = {k: v for k, v in info["training"].items() if k != "history"}
+                safeio.write_json(folder / "metrics.json", metrics, indent=1)
     return LearnedDynamics.load(ckpt, expected_hash=mh)
+
+
+def _remove_orphans(*folders: Path) -> None:
+    """Temporary files a killed writer left (call with the folder's lock held)."""
+    for f in folders:
+        for tmp in safeio.remove_orphans(f):
+            log.info("removed %s, left by a killed writer", tmp)
 
 
 # ---------------------------------------------------------------------------------- CLI

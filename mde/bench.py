@@ -18,7 +18,6 @@ mde.bench`` (GNU OpenMP reads it at start-up; spinning threads are what hurts) o
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics
@@ -28,6 +27,8 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import torch
+
+import safeio
 
 from .model import HeteroscedasticGPMDE
 
@@ -196,8 +197,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     result = run(args.sizes, args.batch, args.d, **config)
     print(format_table(result))
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    safeio.write_json(out, result, indent=2)
     print(f"wrote {out}")
     return 0
 

@@ -14,7 +14,6 @@ likelihood.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -22,6 +21,8 @@ from typing import Any, Sequence
 
 import torch
 from torch import Tensor
+
+import safeio
 
 REPORT_LEVELS = (0.5, 0.8, 0.95)
 #: Levels of the reliability curve (expected coverage on the x axis).
@@ -108,10 +109,7 @@ def reliability_plot(report: dict[str, Any], path: str | Path, title: str = "MDE
     ax.set_title(f"{title}\nNLL {report['nll']:.3f}, n={report['n']}\n{cov}", fontsize=8)
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    return path
+    return safeio.save_figure(fig, path)
 
 
 def load_heldout(path: str | Path) -> tuple[Tensor, Tensor]:
@@ -136,7 +134,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     report = calibration_report(mde, X, y)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "calibration.json").write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    safeio.write_json(out / "calibration.json", report, indent=2)
     reliability_plot(report, out / "reliability.png")
     cov = "  ".join(f"{float(k) * 100:.0f}%: {v:.3f}" for k, v in report["coverage"].items())
     print(f"n={report['n']}  coverage  {cov}  NLL={report['nll']:.4f}  RMSE={report['rmse']:.4g}")

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 import time
 import warnings
 from contextlib import contextmanager
@@ -35,12 +34,15 @@ from pathlib import Path
 from typing import Any, Iterator, Mapping
 
 import torch
+
 from botorch.exceptions.errors import ModelFittingError
 from botorch.models import SingleTaskGP
 from botorch.models.model import Model
 from botorch.posteriors import Posterior
 from linear_operator.utils.errors import NanError, NotPSDError
 from torch import Tensor
+
+import safeio
 
 from ._fast import KernelCache
 from .config import MDEConfig
@@ -376,17 +378,7 @@ class HeteroscedasticGPMDE:
                 "noise_Y": None if f.noise_train is None else f.noise_train[1],
                 "info": f.info,
             }
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                torch.save(payload, fh)
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
-        return path
+        return safeio.save_torch(path, payload)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "HeteroscedasticGPMDE":

@@ -20,7 +20,6 @@ rates here say nothing about the real task; only the timings are the point.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import statistics
 import sys
@@ -29,7 +28,10 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+
 import torch
+
+import safeio
 
 from .config import PlannerConfig
 from .problems import sample_problems
@@ -261,8 +263,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             known_obstacles=args.known_obstacles)
     print(format_table(r))
     if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(r, indent=2, default=str))
+        safeio.write_json(args.out, r, indent=2, default=str)
         print(f"wrote {args.out}")
     sys.stdout.flush()
     return 0

@@ -9,13 +9,15 @@ grid and number of environments B. Figure: particle-substeps per second = B * pa
 """
 
 import argparse
-import json
 import os
 import platform
 import time
 
 import numpy as np
+
 import taichi as ti
+
+import safeio
 
 from .backend import init_taichi
 from .config import SimConfig
@@ -171,10 +173,7 @@ def main(argv=None) -> None:
               f"{r['reference_pss']:>18.3g} {r['ratio']:>6.2f} {sp:>7}")
     meta = {"arch": args.arch, "dx": args.dx, "cpu_count": os.cpu_count(), "machine": platform.machine(),
             "targets": {"ratio_min": 0.7, "B32_over_B1_min": 2.0}}
-    tmp = args.out + ".tmp"
-    with open(tmp, "w") as f:
-        json.dump({"meta": meta, "rows": rows}, f, indent=1)
-    os.replace(tmp, args.out)
+    safeio.write_json(args.out, {"meta": meta, "rows": rows})
     print(f"wrote {args.out}")
 
 

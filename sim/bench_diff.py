@@ -30,6 +30,8 @@ import time
 
 import numpy as np
 
+import safeio
+
 POUR = (0.31, 0.14, 1.8, 0.5)
 AGREEMENT_POURS = [(0.31, 0.14, 1.8, 0.5), (0.31, 0.14, 1.5, 0.5), (0.31, 0.14, 1.3, 1.0), (0.30, 0.16, 1.4, 0.3),
                    (0.34, 0.16, 1.6, 0.2)]
@@ -119,10 +121,7 @@ def refinement(steps: int) -> dict:
 
 
 def _atomic_json(path: str, obj: dict) -> None:
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as f:
-        json.dump(obj, f, indent=1)
-    os.replace(tmp, path)
+    safeio.write_json(path, obj)
 
 
 def _subprocess(args: list[str]) -> dict:

@@ -6,11 +6,11 @@ resolution check of a reference pour.
 """
 
 import argparse
-import json
-import os
 import time
 
 import numpy as np
+
+import safeio
 
 from .execute import PouringExecutor
 from .problems import sample_problems
@@ -18,22 +18,37 @@ from .skills import move, pour, random_actions
 from .world import WorldConfig
 
 
-def bench_batch(cfg: WorldConfig, n: int, n_actions: int, seed: int = 0, arch: str | None = None) -> dict:
+def bench_batch(cfg: WorldConfig, n: int, n_actions: int, seed: int = 0, arch: str | None = None,
+                compare: bool = True) -> dict:
+    """Execute n random trajectories; with ``compare`` also the old path (every environment simulated
+    to the end of the longest trajectory) on the same batch, in the same process, checking that the
+    observations agree bit for bit, and the speed-up."""
     rng = np.random.default_rng(seed)
     probs = sample_problems(cfg, n, seed)
     acts = [random_actions(cfg, n_actions, rng) for _ in range(n)]
     ex = PouringExecutor(cfg, arch=arch)
     ex.solver(n)  # compile outside the timed region (once per process and batch size)
-    t0 = time.perf_counter()
-    res = ex.run("target", np.array([p.start[:3] for p in probs]), acts,
-                 plant_jitter=np.array([p.plant_jitter for p in probs]), goals=[p.goal for p in probs], progress=True)
-    wall = time.perf_counter() - t0
-    timing = dict(ex.last_timing)
+    kw = dict(plant_jitter=np.array([p.plant_jitter for p in probs]), goals=[p.goal for p in probs])
+    starts = np.array([p.start[:3] for p in probs])
+    runs = {}
+    for freeze in ((False, True) if compare else (True,)):
+        t0 = time.perf_counter()
+        res = ex.run("target", starts, acts, freeze_done=freeze, progress=True, **kw)
+        runs[freeze] = (res, time.perf_counter() - t0, dict(ex.last_timing))
     ex.close()
+    res, wall, timing = runs[True]
     cats = {c: sum(r.category == c for r in res) for c in ("successful_pour", "unsuccessful_pour", "stuck_in_plant", "other")}
     shares = {k: timing[k] / timing["total"] for k in ("schedule", "simulate", "control", "state_queries", "frames")}
-    return {"n": n, "actions": n_actions, "wall_seconds": wall, "timing": timing, "shares": shares,
-            "categories": cats, "executed_actions": int(sum(len(r.steps) for r in res))}
+    out = {"n": n, "actions": n_actions, "wall_seconds": wall, "timing": timing, "shares": shares,
+           "categories": cats, "executed_actions": int(sum(len(r.steps) for r in res)),
+           "env_ticks_run": timing["env_ticks_run"], "env_ticks": timing["env_ticks"]}
+    if compare:
+        old, old_wall, old_timing = runs[False]
+        out["all_envs_to_the_end"] = {"wall_seconds": old_wall, "timing": old_timing}
+        out["speedup"] = old_wall / wall
+        out["identical"] = all(np.array_equal(a.states, b.states) and a.category == b.category
+                               for a, b in zip(old, res))
+    return out
 
 
 #: reference pour: from below the canopy, tilt past horizontal (empties the cup into the target)
@@ -107,6 +122,7 @@ def main(argv=None) -> None:
     ap.add_argument("--out", default="bench_execute.json")
     ap.add_argument("--resolution", action="store_true", help="also run the resolution check")
     ap.add_argument("--skip-batch", action="store_true", help="only the resolution check")
+    ap.add_argument("--no-compare", action="store_true", help="skip the old-path run of the batch")
     ap.add_argument("--arch", default=None, help="cpu | gpu | auto (default: the world config's)")
     ap.add_argument("--spread", action="store_true", help="also measure the outcome spread of one pour")
     ap.add_argument("--spread-dx", type=float, nargs="+", default=[0.01, 0.005])
@@ -114,9 +130,13 @@ def main(argv=None) -> None:
     cfg = WorldConfig.load()
     result = {}
     if not args.skip_batch:
-        result["batch"] = row = bench_batch(cfg, args.n, args.actions, arch=args.arch)
+        result["batch"] = row = bench_batch(cfg, args.n, args.actions, arch=args.arch, compare=not args.no_compare)
         print(f"{args.n} target-world trajectories x {args.actions} actions: {row['wall_seconds']:.1f} s wall "
-              f"({row['timing']['sim_seconds']:.1f} s simulated, {row['timing']['substeps']} substeps), target <= 90 s")
+              f"({row['timing']['sim_seconds']:.1f} s simulated, {row['timing']['substeps']} substeps of the batch; "
+              f"{row['env_ticks_run']} of {row['env_ticks']} environment-ticks run, finished environments frozen)")
+        if "speedup" in row:
+            print(f"  every environment to the end (old path): {row['all_envs_to_the_end']['wall_seconds']:.1f} s; "
+                  f"speed-up {row['speedup']:.2f}x; observations identical: {row['identical']}")
         for k, v in row["shares"].items():
             print(f"  {k:14s} {100 * v:5.1f} %")
         print("  categories:", row["categories"])
@@ -136,10 +156,7 @@ def main(argv=None) -> None:
         for r in rows:
             print(f"  {r['dx']:7.4f} {r['theta']:6.2f} {r['slots_mean']:11.3f} {r['slots_std']:6.3f} "
                   f"{r['approaches']:11d} {r['approaches_mean']:6.3f} {r['approaches_std']:6.3f}")
-    tmp = args.out + ".tmp"
-    with open(tmp, "w") as f:
-        json.dump(result, f, indent=1)
-    os.replace(tmp, args.out)
+    safeio.write_json(args.out, result)
     print(f"wrote {args.out}")
 
 

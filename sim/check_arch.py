@@ -24,6 +24,8 @@ import time
 
 import numpy as np
 
+import safeio
+
 #: tolerances of the comparison (see the module docstring for why fractions are compared as means)
 POSE_TOL = 1e-4          # m / rad: poses come from the schedule, identical on both arches
 MEAN_FRACTION_TOL = 0.03  # mean |difference| of v_ctrl and v_tgt over the batch
@@ -114,10 +116,7 @@ def main(argv=None) -> None:
         print(f"  unstable                   {cmp['unstable']}")
         print(f"  wall seconds               " + ", ".join(f"{k} {v:.1f}" for k, v in cmp["wall_seconds"].items()))
         print(f"  {'PASSED' if cmp['passed'] else 'FAILED'} (tolerances {cmp['tolerances']})")
-    tmp = args.out + ".tmp"
-    with open(tmp, "w") as f:
-        json.dump(result, f, indent=1)
-    os.replace(tmp, args.out)
+    safeio.write_json(args.out, result)
     if not args.run_one:
         print(f"wrote {args.out}")
 

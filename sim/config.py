@@ -33,6 +33,9 @@ class SimConfig:
     sound_speed: float = 12.0  # m/s, numerical speed of sound (bulk modulus = rho c^2)
     gravity: float = 9.81  # m/s^2, acting along -y
     friction: float = 0.0  # Coulomb coefficient water/wall (0 = free slip)
+    #: Pa s, dynamic (Newtonian shear) viscosity of the liquid; water is 1e-3 (far below what the grid
+    #: resolves: 0 behaves the same), honey 2-10; explicit, so dt must also satisfy dt_visc
+    viscosity: float = 0.0
     #: False: no negative pressure (J is capped at 1), so water that separates -- a stream leaving a
     #: lip, a film on a wall -- is not pulled back by tension, as free-surface water should behave;
     #: True: mpm88's p = K (1 - J) on both sides, which makes coarse water cohesive and sticky
@@ -42,6 +45,9 @@ class SimConfig:
     #: rest pressure; False: J advected only (mpm88), which lets a tilted cup's water collapse into a film
     volume_correction: bool = True
     volume_relax: float = 0.02  # s, time constant of that correction
+    #: s, > 0: stretch (J > 1, negative pressure) decays towards J = 1 with this time constant, so
+    #: tension holds a stream together but is not stored as history; 0 = off (mpm88)
+    stretch_relax: float = 0.0
     ppc: int = 4  # particles per cell at rest (must be k**dim)
     n_envs: int = 1  # B, independent environments sharing one set of fields
     max_particles: int = 1024  # per environment
@@ -67,6 +73,11 @@ class SimConfig:
         return self.cfl * self.dx / self.sound_speed
 
     @property
+    def dt_visc(self) -> float:
+        """Viscous stability bound of explicit diffusion: nu dt / dx^2 <= cfl / (2 dim), nu = mu / rho."""
+        return math.inf if self.viscosity == 0 else self.cfl * self.rho * self.dx**2 / (2 * self.dim * self.viscosity)
+
+    @property
     def res(self) -> tuple[int, ...]:
         """Grid nodes per axis."""
         return tuple(int(round(L / self.dx)) for L in self.domain)
@@ -89,6 +100,8 @@ class SimConfig:
             need(getattr(self, name) > 0 and math.isfinite(getattr(self, name)), name, "> 0")
         need(self.gravity >= 0, "gravity", ">= 0 m/s^2 (acts along -y)")
         need(0.0 <= self.friction <= 10.0, "friction", "[0, 10]")
+        need(0.0 <= self.stretch_relax < math.inf, "stretch_relax", "a finite time >= 0 s (0 = off)")
+        need(0.0 <= self.viscosity < math.inf, "viscosity", "a finite value >= 0 Pa s (water 1e-3, honey 2-10)")
         need(self.cfl <= 1.0, "cfl", "(0, 1]")
         k = round(self.ppc ** (1.0 / self.dim))
         need(self.ppc >= 1 and k**self.dim == self.ppc, "ppc", f"a perfect power k**{self.dim} (e.g. 1, 4, 9, 16 in 2D)")
@@ -103,6 +116,12 @@ class SimConfig:
             raise ConfigError(
                 f"sim.dt = {self.dt:g} s is above the stable bound for this grid and stiffness: allowed "
                 f"(0, {self.dt_max:.3g}] s = cfl * dx / sound_speed = {self.cfl} * {self.dx} / {self.sound_speed}"
+            )
+        if self.dt > self.dt_visc * (1 + 1e-9):
+            raise ConfigError(
+                f"sim.dt = {self.dt:g} s is above the viscous stability bound: allowed (0, {self.dt_visc:.3g}] s = "
+                f"cfl * rho * dx^2 / (2 * dim * viscosity); lower sim.viscosity below "
+                f"{self.cfl * self.rho * self.dx**2 / (2 * self.dim * self.dt):.3g} Pa s or sim.dt"
             )
 
     # ------------------------------------------------------------------ (de)serialisation

@@ -32,6 +32,7 @@ import taichi as ti
 
 from .backend import init_taichi
 from .config import SimConfig
+from .physics import affine_momentum, bspline_weights, update_volume_ratio
 from .world import WorldConfig
 
 #: reals stored per particle state: x (2), v (2), C (4), J (1)
@@ -54,6 +55,7 @@ class DiffMPM:
                  checkpoint_every: int, precision: str = "f64", arch: str = "cpu", soft_width: float | None = None):
         sc: SimConfig = world.sim_config(n_envs)
         self.world, self.sc = world, sc
+        self.stretch_rate = min(sc.dt / sc.stretch_relax, 1.0) if sc.stretch_relax > 0 else 0.0  # as MPMSolver's
         self.arch = init_taichi(arch)
         self.real = ti.f64 if precision == "f64" else ti.f32
         self.np_real = np.float64 if precision == "f64" else np.float32
@@ -238,9 +240,9 @@ class DiffMPM:
                 Xp = self.x[s, b, p] * inv_dx
                 base = ti.cast(Xp - 0.5, ti.i32)
                 fx = Xp - base
-                w = [0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2]
-                stress = -dt * 4.0 * self.bulk * self.p_vol * (self.J[s, b, p] - 1.0) * inv_dx * inv_dx
-                affine = ti.Matrix.identity(real, 2) * stress + self.p_mass * self.C[s, b, p]
+                w = bspline_weights(fx)
+                affine = affine_momentum(self.J[s, b, p], self.C[s, b, p], self.p_mass, self.p_vol, self.bulk,
+                                         self.sc.viscosity, dt, inv_dx, real, 2)
                 mv = self.p_mass * self.v[s, b, p]
                 for i, j in ti.static(ti.ndrange(3, 3)):
                     offset = ti.Vector([i, j])
@@ -266,7 +268,7 @@ class DiffMPM:
                 Xp = self.x[s, b, p] * inv_dx
                 base = ti.cast(Xp - 0.5, ti.i32)
                 fx = Xp - base
-                w = [0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2]
+                w = bspline_weights(fx)
                 new_v = ti.Vector.zero(real, 2)
                 new_C = ti.Matrix.zero(real, 2, 2)
                 mass_near = ti.cast(0.0, real)
@@ -288,12 +290,12 @@ class DiffMPM:
                 self.x[s + 1, b, p] = xn
                 self.v[s + 1, b, p] = new_v
                 self.C[s + 1, b, p] = new_C
-                Jn = self.J[s, b, p] * (1.0 + dt * new_C.trace())
-                if ti.static(not self.sc.tension):  # production: no negative pressure
-                    Jn = ti.min(Jn, 1.0)
-                if ti.static(self.sc.volume_correction):  # production's relaxed grid-density bound on J
-                    J_rho = ti.max(ti.static(self.sc.ppc * self.p_mass) / ti.max(mass_near, 1e-12), 0.9)
-                    Jn += ti.min(J_rho - Jn, 0.0) * ti.static(min(self.sc.dt / self.sc.volume_relax, 1.0))
+                # the production solver's J update (shared function: advect, grid-density bound, cap)
+                Jn = update_volume_ratio(self.J[s, b, p], new_C.trace(), mass_near, dt,
+                                         ti.static(self.sc.ppc * self.p_mass),
+                                         ti.static(min(self.sc.dt / self.sc.volume_relax, 1.0)),
+                                         self.sc.volume_correction, self.sc.tension,
+                                        self.stretch_rate)
                 self.J[s + 1, b, p] = Jn
 
     @ti.func

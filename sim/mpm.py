@@ -30,6 +30,7 @@ import taichi as ti
 
 from .backend import init_taichi
 from .config import ConfigError, SimConfig
+from .physics import affine_momentum, bspline_weights, update_volume_ratio
 from .scene import SHAPE_KINDS, EnvSpec, sample_water
 
 log = logging.getLogger(__name__)
@@ -59,6 +60,8 @@ class MPMSolver:
         self.p_vol = cfg.dx**dim / cfg.ppc
         self.p_mass = cfg.rho * self.p_vol
         self.bulk = cfg.rho * cfg.sound_speed**2
+        #: per-substep decay of stretch (J > 1); 0 = off (see physics.update_volume_ratio)
+        self.stretch_rate = min(cfg.dt / cfg.stretch_relax, 1.0) if cfg.stretch_relax > 0 else 0.0
         self.time = 0.0
         self.specs: list[EnvSpec] = []
 
@@ -72,7 +75,8 @@ class MPMSolver:
         self.n_shapes = ti.field(ti.i32)
         self.nan_flag = ti.field(ti.i32)
         self.pinned = ti.field(ti.i32)
-        fb.dense(ti.i, self.B).place(self.n_part, self.n_shapes, self.nan_flag, self.pinned)
+        self.active = ti.field(ti.i32)  # 0: environment frozen (costs nothing, state kept as it is)
+        fb.dense(ti.i, self.B).place(self.n_part, self.n_shapes, self.nan_flag, self.pinned, self.active)
         # grid nodes each environment's particles touch: [lo, hi] per axis, this and next substep
         self.box_cur = ti.Vector.field(dim, ti.i32)
         self.box_cur_hi = ti.Vector.field(dim, ti.i32)
@@ -165,6 +169,7 @@ class MPMSolver:
         self.n_part.from_numpy(n_part)
         self.nan_flag.fill(0)
         self.pinned.fill(0)
+        self.active.fill(1)
         self.shape_kind.from_numpy(kind)
         self.shape_body.from_numpy(sbody)
         self.shape_c.from_numpy(sc)
@@ -213,11 +218,48 @@ class MPMSolver:
         self._body_state[:, body, :3] = np.asarray(pose, np.float32).reshape(self.B, 3)
         self._push_bodies()
 
+    def track(self, body: int, target: np.ndarray, horizon: float) -> None:
+        """Set body ``body``'s velocities so that it reaches ``target`` (B, 3) poses in ``horizon`` seconds.
+
+        The same arithmetic as ``set_body_velocity((target - body_poses(body)) / horizon)`` (float64,
+        then stored as float32), but in one kernel launch instead of nine field copies: this is
+        the controller's per-tick call.
+        """
+        self._track(int(body), np.ascontiguousarray(target, np.float64).reshape(self.B, 3), float(horizon))
+
+    @ti.kernel
+    def _track(self, k: ti.i32, target: ti.types.ndarray(dtype=ti.f64, ndim=2), h: ti.f64):
+        for b in range(self.B):
+            if ti.static(self.dim == 2):
+                for d in ti.static(range(2)):
+                    self.body_vel[b, k][d] = ti.cast((target[b, d] - ti.cast(self.body_pos[b, k][d], ti.f64)) / h, ti.f32)
+            self.body_omega[b, k] = ti.cast((target[b, 2] - ti.cast(self.body_rot[b, k], ti.f64)) / h, ti.f32)
+
     def _pull_bodies(self) -> None:
         self._body_state[..., 0:2] = self.body_pos.to_numpy()
         self._body_state[..., 2] = self.body_rot.to_numpy()
+        self._body_state[..., 3:5] = self.body_vel.to_numpy()  # ``track`` writes velocities on the device
+        self._body_state[..., 5] = self.body_omega.to_numpy()
 
     # ================================================================== stepping
+    def set_active(self, mask: np.ndarray) -> None:
+        """Freeze (False) or run (True) each environment; (B,) booleans.
+
+        A frozen environment is skipped by every stage of the substep, so a batch whose trajectories
+        have ended costs only what its running environments cost. Its particles, grid and bodies stay
+        exactly as they were (time stands still for it) and it resumes from there when set running
+        again; the other environments' numbers do not change (environments never interact).
+        ``reset`` sets every environment running.
+        """
+        mask = np.asarray(mask, bool).reshape(-1)
+        if mask.shape != (self.B,):
+            raise ValueError(f"set_active: expected {self.B} booleans (one per environment), got shape {mask.shape}")
+        self.active.from_numpy(mask.astype(np.int32))
+
+    def active_mask(self) -> np.ndarray:
+        """(B,) booleans: which environments are running (see ``set_active``)."""
+        return self.active.to_numpy().astype(bool)
+
     def step(self, n_substeps: int = 1) -> None:
         """Advance every environment by ``n_substeps`` substeps of ``cfg.dt``."""
         for _ in range(int(n_substeps)):
@@ -384,9 +426,9 @@ class MPMSolver:
         Xp = self.x[b, p] * inv_dx
         base = ti.cast(Xp - 0.5, ti.i32)
         fx = Xp - base
-        w = [0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2]
-        stress = -dt * 4.0 * self.bulk * self.p_vol * (self.J[b, p] - 1.0) * inv_dx * inv_dx
-        affine = ti.Matrix.identity(ti.f32, self.dim) * stress + self.p_mass * self.C[b, p]
+        w = bspline_weights(fx)
+        affine = affine_momentum(self.J[b, p], self.C[b, p], self.p_mass, self.p_vol, self.bulk,
+                                 self.cfg.viscosity, dt, inv_dx, ti.f32, self.dim)
         mv = self.p_mass * self.v[b, p]
         for offset in ti.static(ti.grouped(ti.ndrange(*([3] * self.dim)))):
             dpos = (offset - fx) * dx
@@ -463,32 +505,36 @@ class MPMSolver:
         # 1. clear the nodes the last particle-to-grid wrote (everything else is zero already). Grid
         #    loops run over rows (b, i) and only the active part of each row: empty tank costs nothing.
         for b, i in ti.ndrange(self.B, self.res[0]):
-            self._for_active_nodes(b, i, self._clear_node)
+            if self.active[b]:
+                self._for_active_nodes(b, i, self._clear_node)
         # 2. per environment: make the box of the particles' current stencils the active box, move
         #    the kinematic bodies by their prescribed velocities (so grid update and G2P see this
         #    substep's collider poses), then particle to grid. One task per environment on the CPU.
         if ti.static(self.serial_p2g):
             ti.loop_config(block_dim=1)  # one environment per task, so environments spread over threads
             for b in range(self.B):
-                self._begin_env(b)
-                for p in range(self.n_part[b]):
-                    self._p2g(b, p)
+                if self.active[b]:
+                    self._begin_env(b)
+                    for p in range(self.n_part[b]):
+                        self._p2g(b, p)
         else:
             for b in range(self.B):
-                self._begin_env(b)
+                if self.active[b]:
+                    self._begin_env(b)
             for b, p in ti.ndrange(self.B, self.N):
-                if p < self.n_part[b]:
+                if p < self.n_part[b] and self.active[b]:
                     self._p2g(b, p)
         # 3. grid update: momentum to velocity, gravity, colliders
         for b, i in ti.ndrange(self.B, self.res[0]):
-            self._for_active_nodes(b, i, self._update_node)
+            if self.active[b]:
+                self._for_active_nodes(b, i, self._update_node)
         # 4. grid to particle, advection, collider projection, safety clamp
         for b, p in ti.ndrange(self.B, self.N):
-            if p < self.n_part[b]:
+            if p < self.n_part[b] and self.active[b]:
                 Xp = self.x[b, p] / dx
                 base = ti.cast(Xp - 0.5, ti.i32)
                 fx = Xp - base
-                w = [0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2]
+                w = bspline_weights(fx)
                 new_v = ti.Vector.zero(ti.f32, dim)
                 new_C = ti.Matrix.zero(ti.f32, dim, dim)
                 mass_near = 0.0
@@ -509,17 +555,10 @@ class MPMSolver:
                     n, vc = self._normal_and_velocity(b, idx, xn)
                     xn -= phi * n
                     new_v = self._separate(new_v, vc, n)
-                J = self.J[b, p] * (1.0 + dt * new_C.trace())
-                if ti.static(self.cfg.volume_correction):
-                    # the grid's density says the water is more compressed than the advected J does
-                    # (particles pushed together by collider projection): use it, so pressure restores
-                    # the lost volume; never the other way (free surfaces and walls read low density)
-                    # relaxed over volume_relax seconds and bounded, so that particle noise in the
-                    # density estimate does not become pressure noise
-                    J_rho = ti.max(self.cfg.ppc * self.p_mass / ti.max(mass_near, 1e-12), 0.9)
-                    J += ti.min(J_rho - J, 0.0) * ti.min(dt / self.cfg.volume_relax, 1.0)
-                if ti.static(not self.cfg.tension):
-                    J = ti.min(J, 1.0)
+                J = update_volume_ratio(self.J[b, p], new_C.trace(), mass_near, dt, ti.static(self.cfg.ppc * self.p_mass),
+                                        ti.static(min(dt / self.cfg.volume_relax, 1.0)),
+                                        self.cfg.volume_correction, self.cfg.tension,
+                                        self.stretch_rate)
                 bad = _not_finite(J)
                 for d in ti.static(range(dim)):
                     bad = bad | _not_finite(xn[d]) | _not_finite(new_v[d])

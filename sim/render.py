@@ -13,8 +13,11 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import numpy as np
+
 from matplotlib.patches import Polygon, Rectangle  # noqa: E402
+
+import safeio
 
 from .scene import EnvSpec  # noqa: E402
 
@@ -59,7 +62,7 @@ def save_png(solver, path: str | Path, env: int = 0, title: str = "") -> Path:
     fig, ax = plt.subplots(figsize=(5, 5 * cfg.domain[1] / cfg.domain[0]), dpi=110)
     draw_frame(ax, snapshot(solver, env), solver.specs[env], cfg.domain, cfg.wall, title)
     fig.tight_layout()
-    fig.savefig(path)
+    safeio.save_figure(fig, path)
     plt.close(fig)
     return path
 
@@ -78,7 +81,5 @@ def save_gif(snaps: Sequence[dict], spec: EnvSpec, domain: Sequence[float], wall
         fig.canvas.draw()
         frames.append(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy())
     plt.close(fig)
-    tmp = path.with_suffix(".tmp.gif")
-    imageio.mimsave(tmp, frames, duration=1.0 / fps, loop=0)
-    tmp.replace(path)
+    safeio.atomic_write(path, lambda f: imageio.mimsave(f, frames, format="GIF", duration=1.0 / fps, loop=0))
     return path

@@ -89,18 +89,39 @@ class Obstacles:
     interior_lo: np.ndarray
     interior_hi: np.ndarray
 
-    def sdf(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(distance, index of the closest obstacle: body index, or -1 for the tank walls)."""
+    def sdf(self, p: np.ndarray, cutoff: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(distance, index of the closest obstacle: body index, or -1 for the tank walls).
+
+        ``cutoff``: only distances below it need be exact (contact tests): a shape is evaluated only at
+        points within ``cutoff`` of its bounding circle, so far-away shapes cost nothing. Where the
+        true distance is below ``cutoff`` the result (distance and index) is the same as without it;
+        elsewhere it may be an upper bound of the true distance (from the shapes that were evaluated).
+        """
         walls = np.minimum((p - self.interior_lo).min(1), (self.interior_hi - p).min(1))
         best, idx = walls, np.full(len(p), -1)
         for k, body in enumerate(self.bodies):
             pose = np.asarray(body.pose, float)
+            c, s = math.cos(pose[2]), math.sin(pose[2])
             for sh in body.shapes:
-                d = _sdf_shape(sh, pose, p)
-                closer = d < best
-                best = np.where(closer, d, best)
-                idx = np.where(closer, k, idx)
+                if cutoff is None:
+                    sel = slice(None)
+                else:
+                    cx, cy = sh.center
+                    centre = pose[:2] + (c * cx - s * cy, s * cx + c * cy)
+                    sel = np.flatnonzero(np.hypot(*(p - centre).T) - _bounding_radius(sh) < cutoff)
+                    if not len(sel):
+                        continue
+                d = _sdf_shape(sh, pose, p[sel])
+                closer = d < best[sel]
+                best[sel] = np.where(closer, d, best[sel])
+                idx[sel] = np.where(closer, k, idx[sel])
         return best, idx
+
+
+def _bounding_radius(shape: Shape) -> float:
+    """Radius of a circle about the shape's centre that contains it."""
+    a, b = shape.size
+    return float(math.hypot(a, b) if shape.kind == "box" else (a + b if shape.kind == "capsule" else max(a, b)))
 
 
 def cup_boundary(cfg: WorldConfig, spacing: float = 0.003) -> np.ndarray:
@@ -170,7 +191,7 @@ def plan_schedule(cfg: WorldConfig, start: np.ndarray, actions: np.ndarray, obst
             back = theta * (1 - min_jerk(np.arange(1, n + 1) * h / T))
             angles = np.concatenate([tilt, np.full(int(round(hold / h)), theta), back])
             seg = tilt_about_lip(p0[None], lip, (p0[2] + angles)[None])[0]
-        d, idx = obstacles.sdf(to_world(boundary, seg).reshape(-1, 2))
+        d, idx = obstacles.sdf(to_world(boundary, seg).reshape(-1, 2), cutoff=CONTACT_MARGIN)
         d, idx = d.reshape(len(seg), -1), idx.reshape(len(seg), -1)
         hit = np.flatnonzero(d.min(1) < CONTACT_MARGIN)
         sched.executed += 1

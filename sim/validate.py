@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
+
+import safeio
 
 from .config import SimConfig
 from .motion import follow, min_jerk, min_jerk_duration
@@ -40,9 +41,7 @@ def load_martin_moyce() -> np.ndarray:
 
 
 def _atomic_json(path: Path, obj: dict) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1))
-    os.replace(tmp, path)
+    safeio.write_json(path, obj)
 
 
 # ---------------------------------------------------------------------------------- dam break
@@ -106,7 +105,7 @@ def plot_dam_break(results: list[dict], path: Path) -> None:
     ax.legend(fontsize=8)
     ax.set_title("Dam break: surge front")
     fig.tight_layout()
-    fig.savefig(path)
+    safeio.save_figure(fig, path)
     plt.close(fig)
 
 

@@ -1,7 +1,11 @@
-"""End-to-end runs of the experiment on a tiny configuration, resume after a kill, config errors."""
+"""End-to-end runs of the experiment on a tiny configuration: resume after a kill, config errors before
+compute, and run integrity (one writer per directory, reuse checks, damaged files, permissions)."""
 
+import json
 import os
+import shutil
 import signal
+import stat
 import subprocess
 import sys
 import time
@@ -10,10 +14,13 @@ from pathlib import Path
 import pytest
 import torch
 
+import safeio
 from active.experiment import ExperimentConfig
-from active.io import read_csv
-from active.loop import TIMING_FIELDS
+from active.io import RunFileError, read_csv
+from active.loop import TIMING_FIELDS, config_digest
 from active.run import compose_config, run_experiment
+from active.rundir import legacy_config_digest
+from active.runlock import RunDirectoryError, read_owner
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -75,8 +82,11 @@ def test_resume_after_kill_gives_identical_results(cache, straight_run, tmp_path
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     assert len(read_csv(out / "active_balanced" / "results.csv")) == 1  # killed after iteration 1
+    assert read_owner(out)["pid"] == proc.pid  # its lock record survives it ...
     done = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
+    assert f"from pid {proc.pid}" in done.stdout + done.stderr  # ... and the rerun took the lock over
+    assert read_owner(out) is None  # released at the end
     for method in ("active_balanced", "random_actions"):
         assert _comparable(out / method / "results.csv") == _comparable(straight / method / "results.csv")
         assert read_csv(out / method / "categories.csv") == read_csv(straight / method / "categories.csv")
@@ -91,14 +101,160 @@ def test_resume_after_kill_gives_identical_results(cache, straight_run, tmp_path
     ("acquisition.gamma=1.5", r"gamma = 1.5: allowed \(0, 1\]"),
     ("acquisition._target_=nowhere.Acq", "cannot be imported"),
     ("wandb.mode=loud", "wandb.mode"),
+    ("seed=-1", r"^seed = -1: allowed an integer in \[0, 4294967295\]$"),
+    ("world.sim.dx=0.05", r"world.sim.dx = 0.05: too coarse for the geometry.*Allowed: 0 < dx <= 0.01 m"),
 ])
 def test_config_errors_before_compute(cache, tmp_path, override, match):
     cfg = compose_config(tiny_overrides(cache) + [override])
+    cached = sorted(cache.rglob("*"))
     t0 = time.perf_counter()
     with pytest.raises(ValueError, match=match):
         run_experiment(cfg, tmp_path)
     assert time.perf_counter() - t0 < 10  # nothing was simulated or trained
     assert not (tmp_path / "active_balanced").exists()
+    assert sorted(cache.rglob("*")) == cached  # no data generated, no (degenerate) model cached
+
+
+def test_unwritable_method_directory_fails_before_compute(cache, tmp_path):
+    (tmp_path / "random_actions").write_text("a file where the second method's directory belongs")
+    t0 = time.perf_counter()
+    with pytest.raises(RunDirectoryError, match=r"output directory .*random_actions is not writable"):
+        run_experiment(compose_config(tiny_overrides(cache)), tmp_path)
+    assert time.perf_counter() - t0 < 10
+    assert not (tmp_path / "config.json").exists() and not (tmp_path / "calibration_set.pt").exists()
+    assert read_owner(tmp_path) is None  # the lock was released
+
+
+@pytest.mark.slow  # ~25 s on 2 cores; tests/test_run_integrity.py checks the lock with two processes by default
+def test_second_writer_is_refused_while_the_first_runs(cache, straight_run, tmp_path):
+    """Two real CLI processes into one directory: the second (another seed) stops before doing anything."""
+    out = tmp_path / "shared"
+    cmd = [sys.executable, "-m", "active.run", *tiny_overrides(cache), f"hydra.run.dir={out}"]
+    env = dict(os.environ, PYTHONWARNINGS="ignore")
+    first = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.time() + 300
+        while not (out / "config.json").exists() and first.poll() is None and time.time() < deadline:
+            time.sleep(0.05)
+        second = subprocess.run(cmd + ["seed=1"], cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+        assert first.poll() is None, "the first run ended before the second was refused: nothing was tested"
+    finally:
+        first.kill()
+        first.wait()
+    assert second.returncode != 0
+    assert f"is in use by another run: pid {first.pid}" in second.stderr, second.stderr[-2000:]
+    assert json.loads((out / "config.json").read_text())["seed"] == 0  # still the first run's record
+
+
+def _copy_run(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst)
+    return dst
+
+
+def test_result_files_get_the_umask_permissions(straight_run):
+    out, _ = straight_run
+    expected = 0o666 & ~safeio.current_umask()
+    files = [p for p in out.rglob("*") if p.is_file() and "wandb" not in p.parts]
+    assert {p.name for p in files} >= {"config.json", "calibration_set.pt", "results.csv", "state.pt",
+                                       "mde_iter002.pt", "learning_curves.png", "run.lock"}
+    assert {str(p.relative_to(out)): oct(stat.S_IMODE(p.stat().st_mode)) for p in files
+            if stat.S_IMODE(p.stat().st_mode) != expected} == {}
+
+
+def test_refused_rerun_leaves_the_directory_as_it_was(cache, straight_run, tmp_path):
+    out = _copy_run(straight_run[0], tmp_path / "run")
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    t0 = time.perf_counter()
+    with pytest.raises(RunDirectoryError, match=r"holds results of a different configuration.*seed: 0 -> 1"):
+        run_experiment(compose_config(tiny_overrides(cache) + ["seed=1"]), out)
+    assert time.perf_counter() - t0 < 10
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before  # config.json included
+
+
+def test_moved_cache_and_leftovers_do_not_stop_a_finished_run(cache, straight_run, tmp_path):
+    """The cache moved (state written before the cache left the digest), and temporary files of a kill."""
+    out = _copy_run(straight_run[0], tmp_path / "run")
+    moved = _copy_run(cache, tmp_path / "moved-cache")
+    old_cfg = json.loads((out / "config.json").read_text())
+    state_path = out / "active_balanced" / "state.pt"
+    st = torch.load(state_path, weights_only=False)
+    st["digest"] = legacy_config_digest(old_cfg)  # as the previous version wrote it
+    safeio.save_torch(state_path, st)
+    orphans = [out / ".calibration_set.pt.123.abcd.tmp", out / "random_actions" / ".results.csv.9.ef01.tmp"]
+    for p in orphans:
+        p.write_bytes(b"half a file")
+    models = {p: p.stat().st_mtime_ns for p in moved.rglob("model.pt")}
+    cfg = compose_config(tiny_overrides(moved))
+    run_experiment(cfg, out)
+    assert {p: p.stat().st_mtime_ns for p in moved.rglob("model.pt")} == models  # nothing retrained
+    assert not any(p.exists() for p in orphans)
+    for method in ("active_balanced", "random_actions"):
+        assert read_csv(out / method / "results.csv") == read_csv(straight_run[0] / method / "results.csv")
+    assert json.loads((out / "config.json").read_text())["dynamics"]["cache_root"] == str(moved)
+
+
+@pytest.mark.parametrize("name,damage,match", [
+    ("active_balanced/mde_iter002.pt", "truncate", r"mde_iter002.pt is unreadable \(truncated or damaged"),
+    ("random_actions/mde_iter002.pt", "garbage", r"mde_iter002.pt is unreadable \(not a torch file"),
+    ("calibration_set.pt", "truncate", r"calibration_set.pt is unreadable .*it is rebuilt from the configuration"),
+    ("random_actions/state.pt", "garbage", r"state.pt is unreadable .*results.csv beside it are intact and kept"),
+])
+def test_damaged_run_files_are_named_with_the_fix(cache, straight_run, tmp_path, name, damage, match):
+    out = _copy_run(straight_run[0], tmp_path / "run")
+    path = out / name
+    path.write_bytes(path.read_bytes()[:300] if damage == "truncate" else b"garbage " * 50)
+    t0 = time.perf_counter()
+    with pytest.raises(RunFileError, match=match) as e:
+        run_experiment(compose_config(tiny_overrides(cache)), out)
+    assert str(path) in str(e.value) and "weights_only" not in str(e.value)
+    assert time.perf_counter() - t0 < 30  # before any simulation
+
+
+def test_stale_calibration_set_of_another_seed_is_not_reused(cache, straight_run, tmp_path, monkeypatch):
+    """A seed-0 run killed before its first iteration left its calibration set; a seed-1 run rebuilds it."""
+    import active.loop
+    import active.report
+
+    out = tmp_path / "run"
+    out.mkdir()
+    for name in ("config.json", "calibration_set.pt"):
+        shutil.copy(straight_run[0] / name, out / name)
+    made, seen = [], []
+
+    def fake_calibration(world, dyn, executor, sampler, n, length, seed):
+        made.append(seed)
+        return {"X": torch.zeros(1, 8, dtype=torch.float64), "y": torch.full((1,), float(seed), dtype=torch.float64)}
+
+    class NoLoop:  # the methods are not what this test is about
+        def __init__(self, ctx, *a):
+            seen.append(ctx.calibration)
+
+        def run(self):
+            return []
+
+    monkeypatch.setattr(active.loop, "make_calibration_set", fake_calibration)
+    monkeypatch.setattr(active.loop, "MethodRun", NoLoop)
+    monkeypatch.setattr(active.report, "report", lambda dirs, o: {"table": ""})
+    cfg = compose_config(tiny_overrides(cache) + ["seed=1"])
+    run_experiment(cfg, out)
+    assert made == [1] and all(float(c["y"][0]) == 1.0 for c in seen)
+    saved = torch.load(out / "calibration_set.pt", weights_only=False)
+    assert saved["digest"] == config_digest(cfg) and float(saved["y"][0]) == 1.0
+    assert json.loads((out / "config.json").read_text())["seed"] == 1
+
+
+@pytest.mark.slow
+def test_stale_calibration_set_rerun_equals_a_fresh_run(cache, straight_run, tmp_path):
+    """The probe's case end to end: calibration.csv of the rerun equals a fresh seed-1 run's."""
+    cfg = compose_config(tiny_overrides(cache) + ["seed=1"])
+    run_experiment(cfg, tmp_path / "fresh")
+    out = tmp_path / "stale"
+    out.mkdir()
+    for name in ("config.json", "calibration_set.pt"):
+        shutil.copy(straight_run[0] / name, out / name)
+    run_experiment(cfg, out)
+    for method in ("active_balanced", "random_actions"):
+        assert read_csv(out / method / "calibration.csv") == read_csv(tmp_path / "fresh" / method / "calibration.csv")
 
 
 def test_experiment_config_lists_methods():

@@ -1,0 +1,297 @@
+"""The ladder: can the default world and models show the paper's effect at all?
+
+Four measured rungs, each a precondition of the next, on the default world and the cached default
+dynamics model (the same config composition as ``python -m active.run``, overrides accepted):
+
+1. ``reproducibility``: the same partial pour executed in 32 environment slots from one start and
+   from 32 sampled approach histories; std of the fraction that ends in the target cup. The MDE
+   cannot admit a pour whose outcome scatters more than its precondition allows.
+2. ``source_model_only``: plans from the learned model alone (no MDE) executed in the *source* world,
+   where the model was trained. The paper's story needs a model that is good there.
+3. ``target_model_only``: the same in the target world: how much the plant hurts the model.
+4. ``ceiling``: an MDE fitted on a large target-world dataset (random plans and random actions), then
+   test planning with the paper's precondition (beta_test, d_max) on fresh problems. The best any
+   data-collection method can hope for: the top line of the learning curves.
+
+    python -m active.ladder --out outputs/ladder
+    python -m active.ladder --out outputs/ladder_stretch +world.sim.stretch_relax=0.02
+    python -m active.ladder --out DIR --rungs source_model_only ceiling experiment.plan_goal_tol=0.02
+
+Writes ``DIR/ladder.json`` (atomically, after each rung, so a killed run keeps the rungs it finished)
+and prints a table with the issue's targets next to the measured figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+log = logging.getLogger(__name__)
+
+#: targets of the measurable-effect issue (the default world on a CPU)
+TARGETS = {"reproducibility.max_std": ("<=", 0.010), "source_model_only.found": (">=", 0.90),
+           "source_model_only.success": (">=", 0.80), "ceiling.success": (">=", 0.70), "ceiling.found": (">=", 0.80)}
+#: reference partial pours: ``move(0.32, 0.20), pour(theta, hold)``, on the steep part of the outcome curve
+POUR_XY = (0.32, 0.20)
+
+
+def reproducibility(world, executor, thetas: Sequence[float], hold: float, n: int = 32, seed: int = 7) -> dict:
+    """Std of the fraction in the target cup of one pour (a) across n env slots from one start, (b) across n
+    sampled approach histories (problem starts; trajectories stuck on the way are dropped)."""
+    from sim.problems import sample_problems
+    from sim.skills import move, pour
+
+    starts = np.array([p.start[:3] for p in sample_problems(world, n, seed, world="source")])
+    rows = []
+    for th in thetas:
+        acts = [[move(*POUR_XY), pour(th, hold)]] * n
+        same = executor.run("source", np.array([[0.42, 0.20, 0.0]] * n), acts)
+        appr = [r for r in executor.run("source", starts, acts) if not r.stuck]
+        a = np.array([r.states[-1, 4] for r in same])
+        b = np.array([r.states[-1, 4] for r in appr])
+        rows.append({"theta": th, "hold": hold, "slots_mean": float(a.mean()), "slots_std": float(a.std()),
+                     "approaches": len(b), "approaches_mean": float(b.mean()), "approaches_std": float(b.std()),
+                     "slots_spill_mean": float(np.mean([r.final_spill for r in same]))})
+    return {"pours": rows, "slots_std": [r["slots_std"] for r in rows],
+            "approaches_std": [r["approaches_std"] for r in rows],
+            "max_std": max(max(r["slots_std"], r["approaches_std"]) for r in rows)}
+
+
+def plan_all(planner, problems, exp, seed: int, purpose: str, mde_beta: float | None = None) -> list:
+    """One plan per problem (None where none is found), seeded per (seed, purpose, index)."""
+    from .loop import derive_seed
+
+    plans = []
+    for k, prob in enumerate(problems):
+        try:
+            res = planner.plan(prob.start, prob.goal, beta=exp.beta_test if mde_beta is None else mde_beta,
+                               d_max=exp.d_max, seed=derive_seed(seed, "ladder", purpose, k))
+            plans.append(res.trajectory if res.found else None)
+        except Exception as err:  # a failed plan is recorded, the rung goes on
+            log.warning("ladder %s: planning problem %d failed: %s", purpose, k, err)
+            plans.append(None)
+    return plans
+
+
+def execute_plans(executor, world_name: str, problems, plans) -> list:
+    """Execute the found plans in one batch; returns the results in problem order (None where no plan)."""
+    idx = [k for k, p in enumerate(plans) if p is not None]
+    out: list = [None] * len(plans)
+    if not idx:
+        return out
+    jit = np.array([problems[k].plant_jitter for k in idx])
+    if world_name == "source":
+        jit[:] = 0.0
+    res = executor.run(world_name, np.array([problems[k].start[:3] for k in idx]), [plans[k].actions for k in idx],
+                       plant_jitter=jit, goals=[problems[k].goal for k in idx])
+    for k, r in zip(idx, res):
+        out[k] = r
+    return out
+
+
+def model_only(world, world_name: str, dyn, planner_cfg, exp, executor, n: int, seed: int) -> dict:
+    """Plans from the model alone (no MDE) for n problems, executed in ``world_name``."""
+    from planner import Planner
+    from sim.execute import CATEGORIES
+    from sim.problems import sample_problems
+
+    from .loop import derive_seed
+
+    problems = sample_problems(world, n, derive_seed(seed, "ladder-problems", world_name), world=world_name)
+    t0 = time.perf_counter()
+    plans = plan_all(Planner(dyn, None, planner_cfg), problems, exp, seed, f"model-only-{world_name}")
+    t_plan = time.perf_counter() - t0
+    res = execute_plans(executor, world_name, problems, plans)
+    done = [r for r in res if r is not None]
+    errors = [abs(r.states[-1, 4] - r.goal) for r in done]
+    return {"n": n, "found": len(done) / n, "success": sum(bool(r.goal_reached) for r in done) / n,
+            "categories": {c: sum(r.category == c for r in done) for c in CATEGORIES},
+            "mean_abs_goal_error": float(np.mean(errors)) if errors else None,
+            "spill_over_limit": sum(r.final_spill > world.problems["max_spill"] for r in done),
+            "plan_seconds": t_plan}
+
+
+def ceiling(world, dyn, planner_cfg, exp, executor, make_mde, n_train: int, n: int, seed: int,
+            batch: int = 32) -> dict:
+    """Fit the MDE on n_train target-world trajectories (half random plans of the model alone, half
+    random action sequences), then plan n fresh test problems with the paper's precondition."""
+    import torch
+
+    from planner import ActionSampler, Planner, features
+    from sim.problems import sample_problems
+    from sim.skills import MOVE, POUR
+
+    from .loop import _stack_steps, derive_seed, label_transitions
+
+    n_plans = n_train // 2
+    train_probs = sample_problems(world, n_train, derive_seed(seed, "ladder-ceiling-train"), world="target")
+    plans = plan_all(Planner(dyn, None, planner_cfg), train_probs[:n_plans], exp, seed, "ceiling-train")
+    sampler = ActionSampler(planner_cfg)
+    rng = np.random.default_rng(derive_seed(seed, "ladder-ceiling-actions"))
+    acts = [p.actions if p is not None else sampler.sample(exp.random_actions_length, rng) for p in plans]
+    acts += [sampler.sample(exp.random_actions_length, rng) for _ in train_probs[n_plans:]]
+    results = []
+    for i in range(0, n_train, batch):
+        chunk = train_probs[i:i + batch]
+        results += executor.run("target", np.array([p.start[:3] for p in chunk]), acts[i:i + batch],
+                                plant_jitter=np.array([p.plant_jitter for p in chunk]), goals=[p.goal for p in chunk])
+    s, a, s2 = _stack_steps(results)
+    y = label_transitions(dyn, s, a, s2, world.distance_weights)
+    t0 = time.perf_counter()
+    mde = make_mde().fit(torch.as_tensor(features(s, a)), torch.as_tensor(y))
+    t_fit = time.perf_counter() - t0
+    # why plans are (not) found: how much of the training data the test precondition admits, per skill
+    X = torch.as_tensor(features(s, a))
+    mu, sd = (v.double().numpy() for v in mde.predict(X)) if len(y) else (np.zeros(0), np.zeros(0))
+    bound = mu + exp.beta_test * sd
+    per_skill = {}
+    for name, code in (("move", MOVE), ("pour", POUR)):
+        m = a[:, 0] == code if len(a) else np.zeros(0, bool)
+        if m.any():
+            per_skill[name] = {"n": int(m.sum()), "label_mean": float(np.mean(y[m])),
+                               "label_std": float(np.std(y[m])), "pred_mean": float(np.mean(mu[m])),
+                               "pred_std_mean": float(np.mean(sd[m])),
+                               "admitted": float(np.mean(bound[m] < exp.d_max))}
+    test = sample_problems(world, n, derive_seed(seed, "ladder-ceiling-test"), world="target")
+    t0 = time.perf_counter()
+    tplans = plan_all(Planner(dyn, mde, planner_cfg), test, exp, seed, "ceiling-test")
+    t_plan = time.perf_counter() - t0
+    res = execute_plans(executor, "target", test, tplans)
+    done = [r for r in res if r is not None]
+    return {"train_trajectories": n_train, "train_plans_found": sum(p is not None for p in plans),
+            "train_transitions": int(len(y)), "label_mean": float(np.mean(y)) if len(y) else None,
+            "label_below_d_max": float(np.mean(np.asarray(y) < exp.d_max)) if len(y) else None,
+            "precondition_on_train": per_skill,
+            "n": n, "found": len(done) / n, "success": sum(bool(r.goal_reached) for r in done) / n,
+            "fit_seconds": t_fit, "plan_seconds": t_plan}
+
+
+def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[float], hold: float, n: int,
+               n_train: int, slots: int = 32, progress: bool = True) -> dict:
+    """Measure the requested rungs; ``ladder.json`` is rewritten after each one."""
+    import dynamics
+    from hydra.utils import instantiate
+    from sim.execute import PouringExecutor
+    from sim.world import WorldConfig
+
+    import safeio
+
+    from .experiment import ExperimentConfig
+    from .loop import build_planner_config
+
+    unknown = sorted(set(rungs) - set(RUNGS))
+    if unknown:
+        raise ValueError(f"--rungs {unknown}: allowed any of {list(RUNGS)}")
+    t_start = time.perf_counter()
+    seed = int(cfg.get("seed", 0))
+    exp = ExperimentConfig.from_mapping(cfg["experiment"])
+    world = WorldConfig.from_mapping(cfg["world"])
+    planner_cfg = build_planner_config(world, cfg["planner"], exp)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "ladder.json"
+    result: dict[str, Any] = {"config": {"world": cfg["world"], "dynamics": cfg["dynamics"],
+                                         "experiment": cfg["experiment"], "seed": seed}}
+    executor = PouringExecutor(world)
+
+    def save(name: str, value: Any, t0: float) -> None:
+        result[name] = value
+        result.setdefault("rung_seconds", {})[name] = time.perf_counter() - t0
+        result["seconds"] = time.perf_counter() - t_start
+        safeio.write_json(path, result, indent=1, default=float)
+        log.info("ladder: %s done (%.0f s)", name, time.perf_counter() - t0)
+
+    if "reproducibility" in rungs:
+        t0 = time.perf_counter()
+        save("reproducibility", reproducibility(world, executor, thetas, hold, n=slots), t0)
+    if set(rungs) & {"source_model_only", "target_model_only", "ceiling"}:
+        t0 = time.perf_counter()
+        dyn = dynamics.load_or_train(cfg["dynamics"], world_cfg=cfg["world"], progress=progress)
+        if exp.known_obstacles:
+            dyn = dynamics.ContactAwareDynamics(dyn, world)
+        result.setdefault("rung_seconds", {})["dynamics"] = time.perf_counter() - t0
+        for name in ("source_model_only", "target_model_only"):
+            if name in rungs:
+                t0 = time.perf_counter()
+                save(name, model_only(world, name.split("_")[0], dyn, planner_cfg, exp, executor, n, seed), t0)
+        if "ceiling" in rungs:
+            t0 = time.perf_counter()
+            mde_cfg = dict(cfg["mde"])
+            save("ceiling", ceiling(world, dyn, planner_cfg, exp, executor,
+                                    lambda: instantiate(mde_cfg, _convert_="all"), n_train, n, seed), t0)
+    executor.close()
+    result["seconds"] = time.perf_counter() - t_start
+    safeio.write_json(path, result, indent=1, default=float)
+    return result
+
+
+RUNGS = ("reproducibility", "source_model_only", "target_model_only", "ceiling")
+
+
+def _get(result: dict, dotted: str) -> Any:
+    cur: Any = result
+    for part in dotted.split("."):
+        if not isinstance(cur, dict) or part not in cur:
+            return None
+        cur = cur[part]
+    return cur
+
+
+def table(result: dict) -> str:
+    """The rungs as a table with the targets; a rung not run shows '-'."""
+    lines = [f"{'rung':34s} {'measured':>9s} {'target':>9s}  met"]
+    rows = [("reproducibility.max_std", "{:.3f}"), ("source_model_only.found", "{:.2f}"),
+            ("source_model_only.success", "{:.2f}"), ("target_model_only.found", "{:.2f}"),
+            ("target_model_only.success", "{:.2f}"), ("ceiling.found", "{:.2f}"), ("ceiling.success", "{:.2f}")]
+    for key, fmt in rows:
+        v = _get(result, key)
+        op, tgt = TARGETS.get(key, (None, None))
+        met = "" if v is None or op is None else ("yes" if (v <= tgt if op == "<=" else v >= tgt) else "NO")
+        lines.append(f"{key:34s} {'-' if v is None else fmt.format(v):>9s} "
+                     f"{'' if op is None else f'{op} {tgt:g}':>9s}  {met}")
+    for r in (_get(result, "reproducibility.pours") or []):
+        lines.append(f"  pour theta {r['theta']:.2f} hold {r['hold']:.2f}: slots {r['slots_mean']:.3f} +- "
+                     f"{r['slots_std']:.3f}, approaches {r['approaches_mean']:.3f} +- {r['approaches_std']:.3f}")
+    if "seconds" in result:
+        lines.append(f"wall time {result['seconds']:.0f} s")
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(prog="python -m active.ladder", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", type=Path, required=True, help="output directory (ladder.json)")
+    ap.add_argument("--rungs", nargs="+", default=list(RUNGS), help=f"which rungs (default all: {' '.join(RUNGS)})")
+    ap.add_argument("--thetas", type=float, nargs="+", default=[1.35, 1.45],
+                    help="pour angles of the reproducibility rung (the steep part of the outcome curve)")
+    ap.add_argument("--hold", type=float, default=0.5, help="hold time of the reproducibility pours, s")
+    ap.add_argument("--slots", type=int, default=32, help="environment slots / approaches per reproducibility pour")
+    ap.add_argument("--problems", type=int, default=30, help="problems per planning rung")
+    ap.add_argument("--ceiling-trajectories", type=int, default=128, help="target-world training trajectories")
+    ap.add_argument("overrides", nargs="*", help="Hydra overrides, as for python -m active.run")
+    args = ap.parse_args(argv)
+    # `--rungs a b key=value`: argparse hands the overrides to --rungs; they are overrides
+    args.overrides = [r for r in args.rungs if "=" in r] + list(args.overrides)
+    args.rungs = [r for r in args.rungs if "=" not in r]
+    if args.problems < 1 or args.ceiling_trajectories < 2 or args.slots < 2:
+        raise SystemExit(f"--problems {args.problems} / --ceiling-trajectories {args.ceiling_trajectories} / "
+                         f"--slots {args.slots}: allowed >= 1 / >= 2 / >= 2")
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    from .run import compose_config
+
+    cfg = compose_config(args.overrides)
+    result = run_ladder(cfg, args.out, args.rungs, args.thetas, args.hold, args.problems,
+                        args.ceiling_trajectories, slots=args.slots, progress=bool(cfg.get("progress", True)))
+    print(table(result))
+    print(f"wrote {args.out / 'ladder.json'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,60 @@
+"""The MLS-MPM water model as Taichi functions, shared by the production and differentiable solvers.
+
+One home for what both solvers must agree on (their storage layouts differ: the production solver
+keeps one state per environment, the differentiable one a state per substep): the quadratic B-spline
+weights, the Cauchy stress of the weakly compressible Newtonian fluid and its MLS-MPM force term,
+and the update of the volume ratio J. Functions are generic in the float type (f32 in production,
+f64 for gradients).
+
+Stress: sigma = -p I + mu (grad v + grad v^T), with p = K (1 - J) (K = rho c^2, mpm88's equation of
+state) and the APIC affine matrix C as the velocity gradient. The viscous term is the Newtonian
+shear stress of a liquid of dynamic viscosity mu (Pa s); mu = 0 is the inviscid fluid of mpm88.
+"""
+
+import taichi as ti
+
+
+@ti.func
+def bspline_weights(fx):
+    """Quadratic B-spline weights per axis for fractional offsets fx = x / dx - base (each in [0.5, 1.5))."""
+    return [0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2]
+
+
+@ti.func
+def affine_momentum(J, C, p_mass, p_vol, bulk, viscosity: ti.template(), dt, inv_dx, real: ti.template(),
+                    dim: ti.template()):
+    """MLS-MPM's affine term of the particle-to-grid transfer: -dt V_p M^-1 sigma + m_p C.
+
+    M^-1 = 4 / dx^2 for quadratic B-splines. The pressure part is written exactly as mpm88 does
+    (a scalar on the identity), so the inviscid fluid keeps its bits; ``viscosity`` is a Python
+    constant (compile time), so mu = 0 adds no work.
+    """
+    stress = -dt * 4.0 * bulk * p_vol * (J - 1.0) * inv_dx * inv_dx
+    affine = ti.Matrix.identity(real, dim) * stress + p_mass * C
+    if ti.static(viscosity > 0):
+        affine -= (dt * 4.0 * p_vol * viscosity * inv_dx * inv_dx) * (C + C.transpose())
+    return affine
+
+
+@ti.func
+def update_volume_ratio(J, trace_C, mass_near, dt, rest_mass, relax_rate: ti.template(),
+                        volume_correction: ti.template(), tension: ti.template(), stretch_rate: ti.template()):
+    """Advect J with the velocity divergence, then (optionally) the two corrections, in this order.
+
+    ``volume_correction``: J relaxes at ``relax_rate`` (= min(dt / volume_relax, 1)) towards the
+    grid-density estimate J_rho = rest_mass / mass_near, bounded below by 0.9, whenever the grid says
+    the water is *more* compressed than J does (particles pushed together by collider projection);
+    never the other way (free surfaces and walls read low density). ``stretch_rate`` > 0
+    (= min(dt / stretch_relax, 1)): stretch (J > 1, negative pressure) decays towards J = 1, so tension
+    acts on short time scales (a coherent stream) but is not stored as history. ``tension`` False:
+    J <= 1, no negative pressure at all.
+    """
+    Jn = J * (1.0 + dt * trace_C)
+    if ti.static(volume_correction):
+        J_rho = ti.max(rest_mass / ti.max(mass_near, 1e-12), 0.9)
+        Jn += ti.min(J_rho - Jn, 0.0) * relax_rate
+    if ti.static(stretch_rate > 0):
+        Jn -= ti.max(Jn - 1.0, 0.0) * stretch_rate
+    if ti.static(not tension):
+        Jn = ti.min(Jn, 1.0)
+    return Jn

@@ -1,0 +1,47 @@
+"""The ladder command on a tiny configuration: every rung runs, the JSON holds the issue's keys."""
+
+import json
+
+import pytest
+
+from active.ladder import RUNGS, main, table
+
+
+def test_tiny_ladder_writes_every_rung(tmp_path, capsys):
+    cache = tmp_path / "cache"
+    main(["--out", str(tmp_path / "ladder"), "--slots", "2", "--thetas", "1.45", "--problems", "2",
+          "--ceiling-trajectories", "4",
+          "experiment=tiny", "wandb.mode=disabled", "progress=false", f"dynamics.cache_root={cache}",
+          "dynamics.progress=false", "dynamics.data.n_batches=1", "dynamics.data.batch_size=2",
+          "dynamics.train.max_epochs=5"])
+    res = json.loads((tmp_path / "ladder" / "ladder.json").read_text())
+    rep = res["reproducibility"]
+    assert len(rep["pours"]) == 1 and rep["max_std"] == max(rep["slots_std"] + rep["approaches_std"])
+    assert 0.0 <= rep["pours"][0]["slots_mean"] <= 1.0
+    for name in ("source_model_only", "target_model_only"):
+        assert res[name]["n"] == 2 and 0.0 <= res[name]["success"] <= res[name]["found"] <= 1.0
+    assert sum(res["target_model_only"]["categories"].values()) == round(2 * res["target_model_only"]["found"])
+    ceil = res["ceiling"]
+    assert ceil["train_trajectories"] == 4 and ceil["train_transitions"] >= 4 and ceil["n"] == 2
+    assert 0.0 <= ceil["success"] <= ceil["found"] <= 1.0
+    assert res["seconds"] > 0
+    out = capsys.readouterr().out
+    assert "ceiling.success" in out and "wrote" in out
+
+
+def test_unknown_rung_is_refused_before_compute(tmp_path):
+    from active.ladder import run_ladder
+    from active.run import compose_config
+
+    with pytest.raises(ValueError, match="allowed any of"):
+        run_ladder(compose_config(["experiment=tiny"]), tmp_path, ["ceiling", "floor"], [1.4], 0.5, 2, 4)
+    assert not (tmp_path / "ladder.json").exists()
+
+
+def test_table_marks_targets():
+    text = table({"reproducibility": {"max_std": 0.02, "pours": []}, "source_model_only": {"found": 0.95, "success": 0.5}})
+    lines = {l.split()[0]: l for l in text.splitlines()}
+    assert lines["reproducibility.max_std"].endswith("NO")
+    assert lines["source_model_only.found"].endswith("yes")
+    assert lines["ceiling.success"].split()[1] == "-"
+    assert set(RUNGS) == {"reproducibility", "source_model_only", "target_model_only", "ceiling"}
