@@ -197,12 +197,12 @@ class MPMSolver:
     # ================================================================== bodies
     def body_poses(self, body: int) -> np.ndarray:
         """(B, 3) world poses (x, y, theta) of body ``body`` in every environment."""
-        self._pull_bodies()
+        self._pull_bodies(velocities=False)
         return self._body_state[:, body, :3].copy()
 
     def all_body_poses(self) -> np.ndarray:
         """(B, max_bodies, 3) world poses of every body."""
-        self._pull_bodies()
+        self._pull_bodies(velocities=False)
         return self._body_state[..., :3].copy()
 
     def set_body_velocity(self, body: int, vel: np.ndarray, omega: np.ndarray | None = None) -> None:
@@ -235,11 +235,13 @@ class MPMSolver:
                     self.body_vel[b, k][d] = ti.cast((target[b, d] - ti.cast(self.body_pos[b, k][d], ti.f64)) / h, ti.f32)
             self.body_omega[b, k] = ti.cast((target[b, 2] - ti.cast(self.body_rot[b, k], ti.f64)) / h, ti.f32)
 
-    def _pull_bodies(self) -> None:
+    def _pull_bodies(self, velocities: bool = True) -> None:
+        """Refresh the host copy; velocities too before a push (``track`` writes them on the device)."""
         self._body_state[..., 0:2] = self.body_pos.to_numpy()
         self._body_state[..., 2] = self.body_rot.to_numpy()
-        self._body_state[..., 3:5] = self.body_vel.to_numpy()  # ``track`` writes velocities on the device
-        self._body_state[..., 5] = self.body_omega.to_numpy()
+        if velocities:
+            self._body_state[..., 3:5] = self.body_vel.to_numpy()
+            self._body_state[..., 5] = self.body_omega.to_numpy()
 
     # ================================================================== stepping
     def set_active(self, mask: np.ndarray) -> None:
