@@ -208,7 +208,6 @@ class MethodRun:
         if getattr(self.mde, "is_fitted", False):
             mde_name = f"mde_iter{iteration:03d}.pt"
             self.mde.save(self.dir / mde_name)
-            safeio.adopt(self.dir / mde_name)  # the MDE's own writer neither fsyncs nor respects the umask
         self.state["mde_path"] = mde_name
         self.state["completed"] = iteration
         save_torch(self.dir / "dataset.pt", {"X": self.state["X"], "y": self.state["y"],
