@@ -119,17 +119,14 @@ def model_only(world, world_name: str, dyn, planner_cfg, exp, executor, n: int, 
             "plan_seconds": t_plan}
 
 
-def ceiling(world, dyn, planner_cfg, exp, executor, make_mde, n_train: int, n: int, seed: int,
-            batch: int = 32) -> dict:
-    """Fit the MDE on n_train target-world trajectories (half random plans of the model alone, half
-    random action sequences), then plan n fresh test problems with the paper's precondition."""
-    import torch
-
-    from planner import ActionSampler, Planner, features
+def ceiling_dataset(world, dyn, planner_cfg, exp, executor, n_train: int, seed: int, batch: int = 32) -> dict:
+    """n_train target-world trajectories (half random plans of the model alone, half random action
+    sequences), as arrays: s, a, s_next (transitions of stable trajectories), trajectory (each
+    transition's trajectory index) and category (one per trajectory)."""
+    from planner import ActionSampler, Planner
     from sim.problems import sample_problems
-    from sim.skills import MOVE, POUR
 
-    from .loop import _stack_steps, derive_seed, label_transitions
+    from .loop import _stack_steps, derive_seed
 
     n_plans = n_train // 2
     train_probs = sample_problems(world, n_train, derive_seed(seed, "ladder-ceiling-train"), world="target")
@@ -144,14 +141,55 @@ def ceiling(world, dyn, planner_cfg, exp, executor, make_mde, n_train: int, n: i
         results += executor.run("target", np.array([p.start[:3] for p in chunk]), acts[i:i + batch],
                                 plant_jitter=np.array([p.plant_jitter for p in chunk]), goals=[p.goal for p in chunk])
     s, a, s2 = _stack_steps(results)
-    y = label_transitions(dyn, s, a, s2, world.distance_weights)
+    kept = [(i, r) for i, r in enumerate(results) if not r.unstable]  # as _stack_steps
+    return {"s": s, "a": a, "s_next": s2, "trajectory": np.array([i for i, r in kept for _ in r.steps], dtype=int),
+            "category": np.array([r.category for r in results]),
+            "train_plans_found": np.array(sum(p is not None for p in plans))}
+
+
+def ceiling(world, dyn, planner_cfg, exp, executor, make_mde, n_train: int, n: int, seed: int,
+            data_path: Path | None = None, reuse: bool = False) -> dict:
+    """Fit the MDE on n_train target-world trajectories (:func:`ceiling_dataset`), then plan n fresh
+    test problems with the paper's precondition.
+
+    ``data_path`` (``.npz``): the training transitions are written there before the fit, so that
+    MDE variants can be studied offline; with ``reuse`` they are read from there instead of being
+    simulated again (labels are always recomputed with ``dyn``)."""
+    import torch
+
+    from planner import Planner, features
+    from sim.problems import sample_problems
+    from sim.skills import MOVE, POUR
+
+    from .loop import derive_seed, label_transitions
+
+    if reuse:
+        if data_path is None or not Path(data_path).exists():
+            raise FileNotFoundError(f"--ceiling-data {data_path}: no such file")
+        with np.load(data_path) as f:
+            data = {k: f[k] for k in f.files}
+        n_train = len(data["category"])
+    else:
+        data = ceiling_dataset(world, dyn, planner_cfg, exp, executor, n_train, seed)
+    s, a = data["s"], data["a"]
+    y = label_transitions(dyn, s, a, data["s_next"], world.distance_weights)
+    if data_path is not None and not reuse:
+        import safeio
+
+        safeio.atomic_write(data_path, lambda f: np.savez(f, **data))
     t0 = time.perf_counter()
     mde = make_mde().fit(torch.as_tensor(features(s, a)), torch.as_tensor(y))
     t_fit = time.perf_counter() - t0
-    # why plans are (not) found: how much of the training data the test precondition admits, per skill
+    # why plans are (not) found: how much of the data the test precondition admits, per skill, in
+    # sample and held out by trajectory (the second is what new problems meet)
+    from mde.calibration import cross_validate
+
     X = torch.as_tensor(features(s, a))
     mu, sd = (v.double().numpy() for v in mde.predict(X)) if len(y) else (np.zeros(0), np.zeros(0))
-    bound = mu + exp.beta_test * sd
+    t0 = time.perf_counter()
+    cv = cross_validate(make_mde, X, torch.as_tensor(y), torch.as_tensor(data["trajectory"]), folds=5) \
+        if len(np.unique(data["trajectory"])) >= 5 else None
+    t_cv = time.perf_counter() - t0
     per_skill = {}
     for name, code in (("move", MOVE), ("pour", POUR)):
         m = a[:, 0] == code if len(a) else np.zeros(0, bool)
@@ -159,23 +197,35 @@ def ceiling(world, dyn, planner_cfg, exp, executor, make_mde, n_train: int, n: i
             per_skill[name] = {"n": int(m.sum()), "label_mean": float(np.mean(y[m])),
                                "label_std": float(np.std(y[m])), "pred_mean": float(np.mean(mu[m])),
                                "pred_std_mean": float(np.mean(sd[m])),
-                               "admitted": float(np.mean(bound[m] < exp.d_max))}
+                               **_admission(mu[m], sd[m], y[m], exp, "in_sample")}
+            if cv is not None:
+                per_skill[name].update(_admission(cv[0].numpy()[m], cv[1].numpy()[m], y[m], exp, "heldout"))
     test = sample_problems(world, n, derive_seed(seed, "ladder-ceiling-test"), world="target")
     t0 = time.perf_counter()
     tplans = plan_all(Planner(dyn, mde, planner_cfg), test, exp, seed, "ceiling-test")
     t_plan = time.perf_counter() - t0
     res = execute_plans(executor, "target", test, tplans)
     done = [r for r in res if r is not None]
-    return {"train_trajectories": n_train, "train_plans_found": sum(p is not None for p in plans),
+    return {"train_trajectories": n_train, "train_plans_found": int(data.get("train_plans_found", -1)),
             "train_transitions": int(len(y)), "label_mean": float(np.mean(y)) if len(y) else None,
             "label_below_d_max": float(np.mean(np.asarray(y) < exp.d_max)) if len(y) else None,
             "precondition_on_train": per_skill,
             "n": n, "found": len(done) / n, "success": sum(bool(r.goal_reached) for r in done) / n,
-            "fit_seconds": t_fit, "plan_seconds": t_plan}
+            "fit_seconds": t_fit, "cv_seconds": t_cv, "plan_seconds": t_plan}
+
+
+def _admission(mu: np.ndarray, sd: np.ndarray, y: np.ndarray, exp, prefix: str) -> dict:
+    """Share of transitions the test precondition admits: all, those whose true deviation is under
+    d_max (good: should be admitted) and those over it (bad: should not)."""
+    ok = mu + exp.beta_test * sd < exp.d_max
+    good = y < exp.d_max
+    frac = lambda m: float(np.mean(ok[m])) if m.any() else None  # noqa: E731
+    return {f"{prefix}_admitted": float(np.mean(ok)), f"{prefix}_admitted_good": frac(good),
+            f"{prefix}_admitted_bad": frac(~good)}
 
 
 def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[float], hold: float, n: int,
-               n_train: int, slots: int = 32, progress: bool = True) -> dict:
+               n_train: int, slots: int = 32, progress: bool = True, ceiling_data: Path | None = None) -> dict:
     """Measure the requested rungs; ``ladder.json`` is rewritten after each one."""
     import dynamics
     from hydra.utils import instantiate
@@ -225,7 +275,9 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
             t0 = time.perf_counter()
             mde_cfg = dict(cfg["mde"])
             save("ceiling", ceiling(world, dyn, planner_cfg, exp, executor,
-                                    lambda: instantiate(mde_cfg, _convert_="all"), n_train, n, seed), t0)
+                                    lambda: instantiate(mde_cfg, _convert_="all"), n_train, n, seed,
+                                    data_path=ceiling_data or out / "ceiling_train.npz",
+                                    reuse=ceiling_data is not None), t0)
     executor.close()
     result["seconds"] = time.perf_counter() - t_start
     safeio.write_json(path, result, indent=1, default=float)
@@ -259,6 +311,11 @@ def table(result: dict) -> str:
     for r in (_get(result, "reproducibility.pours") or []):
         lines.append(f"  pour theta {r['theta']:.2f} hold {r['hold']:.2f}: slots {r['slots_mean']:.3f} +- "
                      f"{r['slots_std']:.3f}, approaches {r['approaches_mean']:.3f} +- {r['approaches_std']:.3f}")
+    for skill, r in (_get(result, "ceiling.precondition_on_train") or {}).items():
+        f = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
+        lines.append(f"  ceiling precondition, {skill}s: admits good/bad {f(r.get('in_sample_admitted_good'))}/"
+                     f"{f(r.get('in_sample_admitted_bad'))} in sample, {f(r.get('heldout_admitted_good'))}/"
+                     f"{f(r.get('heldout_admitted_bad'))} held out by trajectory")
     if "seconds" in result:
         lines.append(f"wall time {result['seconds']:.0f} s")
     return "\n".join(lines)
@@ -275,20 +332,29 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--slots", type=int, default=32, help="environment slots / approaches per reproducibility pour")
     ap.add_argument("--problems", type=int, default=30, help="problems per planning rung")
     ap.add_argument("--ceiling-trajectories", type=int, default=128, help="target-world training trajectories")
+    ap.add_argument("--ceiling-data", type=Path, default=None,
+                    help="reuse the training transitions of an earlier run (its DIR/ceiling_train.npz) instead "
+                         "of simulating them; labels are recomputed with the current dynamics model")
     ap.add_argument("overrides", nargs="*", help="Hydra overrides, as for python -m active.run")
-    args = ap.parse_args(argv)
+    args, extra = ap.parse_known_args(argv)
+    bad = [e for e in extra if "=" not in e]
+    if bad:
+        ap.error(f"unrecognized arguments: {' '.join(bad)}")
     # `--rungs a b key=value`: argparse hands the overrides to --rungs; they are overrides
-    args.overrides = [r for r in args.rungs if "=" in r] + list(args.overrides)
+    args.overrides = [r for r in args.rungs if "=" in r] + list(args.overrides) + extra
     args.rungs = [r for r in args.rungs if "=" not in r]
     if args.problems < 1 or args.ceiling_trajectories < 2 or args.slots < 2:
         raise SystemExit(f"--problems {args.problems} / --ceiling-trajectories {args.ceiling_trajectories} / "
                          f"--slots {args.slots}: allowed >= 1 / >= 2 / >= 2")
+    if args.ceiling_data is not None and not args.ceiling_data.is_file():
+        raise SystemExit(f"--ceiling-data {args.ceiling_data}: no such file")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     from .run import compose_config
 
     cfg = compose_config(args.overrides)
     result = run_ladder(cfg, args.out, args.rungs, args.thetas, args.hold, args.problems,
-                        args.ceiling_trajectories, slots=args.slots, progress=bool(cfg.get("progress", True)))
+                        args.ceiling_trajectories, slots=args.slots, progress=bool(cfg.get("progress", True)),
+                        ceiling_data=args.ceiling_data)
     print(table(result))
     print(f"wrote {args.out / 'ladder.json'}")
 

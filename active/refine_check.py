@@ -31,7 +31,7 @@ def _last_checkpoint(folder: Path) -> Path | None:
 def run_check(run_dir: Path, method: str | None, steps: int, lr: float, world_name: str, n_problems: int | None,
               use_mde: bool, progress: bool = True) -> dict:
     import dynamics
-    from mde import HeteroscedasticGPMDE
+    import mde as mde_pkg
     from planner import Planner
     from sim.problems import sample_problems
     from sim.world import WorldConfig, check_world
@@ -56,7 +56,7 @@ def run_check(run_dir: Path, method: str | None, steps: int, lr: float, world_na
         ckpt = _last_checkpoint(run_dir / method)
         if ckpt is None:
             raise FileNotFoundError(f"no MDE checkpoint (mde_iter*.pt) in {run_dir / method}")
-        mde = HeteroscedasticGPMDE.load(ckpt)
+        mde = mde_pkg.load(ckpt)
     world = WorldConfig.from_mapping(cfg["world"])
     planner_cfg = build_planner_config(world, cfg["planner"], exp)
     dyn = dynamics.load_or_train(cfg["dynamics"], world_cfg=cfg["world"], progress=progress)

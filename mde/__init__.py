@@ -7,14 +7,25 @@ features X = (s, a). Knows nothing of the simulator or the planner: tensors in, 
     mde = HeteroscedasticGPMDE().fit(X, y)       # X: n x d, y: n deviations >= 0
     mean, std = mde.predict(X_query)             # label units, predictive std (latent + noise)
     post = mde.model.posterior(X_bqd)            # BoTorch posterior, label units, latent only
+    mde = GroupedMDE(group_column=5)             # one such GP per value of feature 5 (the skill)
 """
 
 from typing import Any
 
 from .config import MDEConfig
+from .grouped import GroupedMDE
 from .model import HeteroscedasticGPMDE
 
-__all__ = ["HeteroscedasticGPMDE", "MDEConfig", "calibration_report"]
+__all__ = ["GroupedMDE", "HeteroscedasticGPMDE", "MDEConfig", "calibration_report", "load"]
+
+
+def load(path: Any) -> "HeteroscedasticGPMDE | GroupedMDE":
+    """Load a saved MDE of either kind (the file names its format)."""
+    import torch
+
+    payload = torch.load(path, map_location="cpu", weights_only=True)
+    cls = GroupedMDE if isinstance(payload, dict) and payload.get("format") == "mde.GroupedMDE" else HeteroscedasticGPMDE
+    return cls.load(path)
 
 
 def __getattr__(name: str) -> Any:

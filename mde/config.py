@@ -65,6 +65,11 @@ class MDEConfig:
     #: On a CPU shared with other busy processes 1 is faster and much steadier than 2 (OpenMP
     #: threads wait on each other); on an idle machine torch's default is best.
     num_threads: int = 0
+    #: Index of a categorical feature column (e.g. the action's skill): :class:`mde.GroupedMDE`
+    #: fits one independent GP per value of that column. Skills' parameters mean different
+    #: things (a move's target x against a pour's angle), so one stationary kernel across them
+    #: is a poor prior. None: one GP for all rows (:class:`mde.HeteroscedasticGPMDE`).
+    group_column: int | None = None
 
     def __post_init__(self) -> None:
         if isinstance(self.nu, bool) or not isinstance(self.nu, (int, float)) or float(self.nu) not in ALLOWED_NU:
@@ -91,6 +96,8 @@ class MDEConfig:
         _int_at_least(self, "seed", 0)
         _int_at_least(self, "predict_chunk", 1)
         _int_at_least(self, "num_threads", 0)
+        if self.group_column is not None:
+            _int_at_least(self, "group_column", 0)
         if 0 < self.max_fit_points < 2:
             raise ValueError(f"max_fit_points must be 0 (all points) or >= 2, got {self.max_fit_points!r}")
 

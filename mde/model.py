@@ -105,6 +105,9 @@ class HeteroscedasticGPMDE:
             base = MDEConfig.from_dict(config).to_dict()
         base.update(overrides)
         self._config = MDEConfig.from_dict(base)
+        if self._config.group_column is not None:
+            raise ValueError(f"group_column={self._config.group_column}: HeteroscedasticGPMDE is one GP for all rows; "
+                             "use mde.GroupedMDE for one GP per group (or group_column=null)")
         self._fitted: _Fitted | None = None
         self._n_features: int | None = None
         self._prior_model = PriorMDEModel(self._config.prior_std)
@@ -358,7 +361,10 @@ class HeteroscedasticGPMDE:
     # -- persistence -----------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> Path:
         """Write config, data and fitted state to ``path`` atomically (temp file + os.replace)."""
-        path = Path(path)
+        return safeio.save_torch(Path(path), self.to_payload())
+
+    def to_payload(self) -> dict[str, Any]:
+        """Config, data and fitted state as tensors and plain types (what :meth:`save` writes)."""
         f = self._fitted
         payload: dict[str, Any] = {
             "format": _FORMAT,
@@ -378,16 +384,21 @@ class HeteroscedasticGPMDE:
                 "noise_Y": None if f.noise_train is None else f.noise_train[1],
                 "info": f.info,
             }
-        return safeio.save_torch(path, payload)
+        return payload
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "HeteroscedasticGPMDE":
         """Rebuild a saved MDE; predictions are identical to the saved one's."""
         payload = torch.load(Path(path), map_location="cpu", weights_only=True)
+        return cls.from_payload(payload, str(path))
+
+    @classmethod
+    def from_payload(cls, payload: Any, source: str = "payload") -> "HeteroscedasticGPMDE":
+        """Inverse of :meth:`to_payload`."""
         if not isinstance(payload, dict) or payload.get("format") != _FORMAT:
-            raise ValueError(f"{path} is not a saved {_FORMAT}")
+            raise ValueError(f"{source} is not a saved {_FORMAT}")
         if payload.get("version") != _FORMAT_VERSION:
-            raise ValueError(f"{path} has format version {payload.get('version')}, expected {_FORMAT_VERSION}")
+            raise ValueError(f"{source} has format version {payload.get('version')}, expected {_FORMAT_VERSION}")
         mde = cls(payload["config"])
         mde._n_features = payload["n_features"]
         state = payload["fitted"]

@@ -9,11 +9,11 @@ from active.ladder import RUNGS, main, table
 
 def test_tiny_ladder_writes_every_rung(tmp_path, capsys):
     cache = tmp_path / "cache"
+    overrides = ["experiment=tiny", "wandb.mode=disabled", "progress=false", f"dynamics.cache_root={cache}",
+                 "dynamics.progress=false", "dynamics.data.n_batches=1", "dynamics.data.batch_size=2",
+                 "dynamics.train.max_epochs=5"]
     main(["--out", str(tmp_path / "ladder"), "--slots", "2", "--thetas", "1.45", "--problems", "2",
-          "--ceiling-trajectories", "4",
-          "experiment=tiny", "wandb.mode=disabled", "progress=false", f"dynamics.cache_root={cache}",
-          "dynamics.progress=false", "dynamics.data.n_batches=1", "dynamics.data.batch_size=2",
-          "dynamics.train.max_epochs=5"])
+          "--ceiling-trajectories", "5", *overrides])
     res = json.loads((tmp_path / "ladder" / "ladder.json").read_text())
     rep = res["reproducibility"]
     assert len(rep["pours"]) == 1 and rep["max_std"] == max(rep["slots_std"] + rep["approaches_std"])
@@ -22,11 +22,20 @@ def test_tiny_ladder_writes_every_rung(tmp_path, capsys):
         assert res[name]["n"] == 2 and 0.0 <= res[name]["success"] <= res[name]["found"] <= 1.0
     assert sum(res["target_model_only"]["categories"].values()) == round(2 * res["target_model_only"]["found"])
     ceil = res["ceiling"]
-    assert ceil["train_trajectories"] == 4 and ceil["train_transitions"] >= 4 and ceil["n"] == 2
+    assert ceil["train_trajectories"] == 5 and ceil["train_transitions"] >= 5 and ceil["n"] == 2
     assert 0.0 <= ceil["success"] <= ceil["found"] <= 1.0
+    for skill in ceil["precondition_on_train"].values():  # in sample and held out by trajectory
+        assert 0.0 <= skill["in_sample_admitted"] <= 1.0 and 0.0 <= skill["heldout_admitted"] <= 1.0
     assert res["seconds"] > 0
     out = capsys.readouterr().out
-    assert "ceiling.success" in out and "wrote" in out
+    assert "ceiling.success" in out and "wrote" in out and "held out by trajectory" in out
+    # the saved training transitions are reused without simulating: same data, same MDE diagnostics
+    data = tmp_path / "ladder" / "ceiling_train.npz"
+    main(["--out", str(tmp_path / "again"), "--rungs", "ceiling", "--problems", "2", "--ceiling-data", str(data),
+          *overrides])
+    again = json.loads((tmp_path / "again" / "ladder.json").read_text())["ceiling"]
+    assert again["train_transitions"] == ceil["train_transitions"]
+    assert again["precondition_on_train"] == ceil["precondition_on_train"]
 
 
 def test_unknown_rung_is_refused_before_compute(tmp_path):

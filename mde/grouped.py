@@ -1,0 +1,214 @@
+"""One heteroscedastic GP per value of a categorical feature (the action's skill).
+
+The pouring task's action is (skill, p1, p2): p1, p2 are a move's target (x, y) or a pour's
+(angle, hold). One stationary ARD kernel over both has to share a length scale between a target x
+in metres and an angle in radians, and lets moves inform pours; its pour predictions then barely
+generalise (measured on 128 target-world trajectories, held out by trajectory: one GP admits 19 %
+of the pours whose true deviation is under d_max, one GP per skill 65 %, neither admits a bad
+one; BENCHMARKS.md). Groups are independent: a row's prediction depends only on its own group's
+data; a group without data predicts the prior (mean 0, std ``prior_std``), "unknown".
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+from typing import Any, Mapping
+
+import torch
+from botorch.models.model import Model
+from botorch.posteriors.gpytorch import GPyTorchPosterior
+from gpytorch.distributions import MultivariateNormal
+from linear_operator.operators import DiagLinearOperator
+from torch import Tensor
+
+import safeio
+
+from .config import MDEConfig
+from .gp import DTYPE
+from .model import HeteroscedasticGPMDE, _as_labels, _as_matrix
+
+_FORMAT = "mde.GroupedMDE"
+_FORMAT_VERSION = 1
+
+
+class GroupedMDE:
+    """``fit(X, y)``, ``predict(X) -> (mean, std)`` and a BoTorch ``model``, like
+    :class:`HeteroscedasticGPMDE`, with one such GP per value of ``config.group_column``.
+
+    With ``group_column=None`` every row is in one group: results equal one HeteroscedasticGPMDE.
+    """
+
+    def __init__(self, config: MDEConfig | Mapping[str, Any] | None = None, **overrides: Any) -> None:
+        base = config.to_dict() if isinstance(config, MDEConfig) else MDEConfig.from_dict(config).to_dict()
+        base.update(overrides)
+        self._config = MDEConfig.from_dict(base)
+        self._child_config = dataclasses.replace(self._config, group_column=None)
+        self._children: dict[float, HeteroscedasticGPMDE] = {}
+        self._prior = HeteroscedasticGPMDE(self._child_config)
+        self._X: Tensor | None = None
+        self._y: Tensor | None = None
+        self._n_features: int | None = None
+
+    # -- properties ------------------------------------------------------------------------------
+    @property
+    def config(self) -> MDEConfig:
+        return self._config
+
+    @property
+    def is_fitted(self) -> bool:
+        return any(c.is_fitted for c in self._children.values())
+
+    @property
+    def n_train(self) -> int:
+        return 0 if self._X is None else int(self._X.shape[0])
+
+    @property
+    def n_features(self) -> int | None:
+        return self._n_features
+
+    @property
+    def train_X(self) -> Tensor | None:
+        """All rows of the last fit, in the order given (not grouped)."""
+        return self._X
+
+    @property
+    def train_y(self) -> Tensor | None:
+        return self._y
+
+    @property
+    def groups(self) -> dict[float, HeteroscedasticGPMDE]:
+        """The GP of each group value seen in fitting."""
+        return dict(self._children)
+
+    @property
+    def fit_info(self) -> dict[str, Any]:
+        return {f"group {g:g}": c.fit_info for g, c in self._children.items()}
+
+    @property
+    def model(self) -> Model:
+        """BoTorch model routing each row to its group's GP (label units; see :class:`GroupedModel`)."""
+        return GroupedModel(self)
+
+    def posterior(self, X: Tensor, observation_noise: bool = False) -> GPyTorchPosterior:
+        return self.model.posterior(X, observation_noise=observation_noise)
+
+    # -- fitting and prediction ------------------------------------------------------------------
+    def group_of(self, X: Tensor) -> Tensor:
+        """Group value of each row of ``X`` (... x d) -> (...)."""
+        col = self._config.group_column
+        if col is None:
+            return torch.zeros(X.shape[:-1], dtype=DTYPE)
+        if col >= X.shape[-1]:
+            raise ValueError(f"group_column={col} but X has only {X.shape[-1]} feature columns")
+        return X[..., col].detach().to(DTYPE).cpu()
+
+    def fit(self, X: Any, y: Any) -> "GroupedMDE":
+        """Fit every group's GP on its rows (each keeps its previous fit if its new one fails)."""
+        X = _as_matrix(X, "X").to(DTYPE)
+        y = _as_labels(y, X.shape[0])
+        g = self.group_of(X)
+        for value in torch.unique(g).tolist():
+            rows = g == value
+            child = self._children.get(value) or HeteroscedasticGPMDE(self._child_config)
+            self._children[value] = child.fit(X[rows], y[rows])
+        for value in set(self._children) - set(torch.unique(g).tolist()):
+            self._children[value].fit(X[:0], y[:0])  # no rows left: back to the prior
+        self._X, self._y, self._n_features = X, y, int(X.shape[1])
+        return self
+
+    def _route(self, X: Any, fn: str) -> list[Tensor]:
+        X = _as_matrix(X, "X")
+        if self._n_features is not None and X.shape[1] != self._n_features:
+            raise ValueError(f"X has d={X.shape[1]} features but the MDE was fitted with d={self._n_features}")
+        g = self.group_of(X)
+        outs: list[Tensor] | None = None
+        for value in torch.unique(g).tolist():
+            rows = g == value
+            res = getattr(self._children.get(value, self._prior), fn)(X[rows])
+            res = res if isinstance(res, tuple) else (res,)
+            if outs is None:
+                outs = [torch.empty(X.shape[0], dtype=r.dtype) for r in res]
+            for o, r in zip(outs, res):
+                o[rows] = r
+        return outs if outs is not None else [torch.zeros(0, dtype=X.dtype), torch.zeros(0, dtype=X.dtype)]
+
+    def predict(self, X: Any) -> tuple[Tensor, Tensor]:
+        """Mean and predictive std of the deviation at ``X`` (n x d), label units, no autograd."""
+        mean, std = self._route(X, "predict")
+        return mean, std
+
+    def noise_std(self, X: Any) -> Tensor:
+        """Std of the observation noise alone at ``X`` (label units)."""
+        return self._route(X, "noise_std")[0]
+
+    # -- persistence -----------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write config, data and every group's fitted state to ``path`` atomically."""
+        payload = {"format": _FORMAT, "version": _FORMAT_VERSION, "config": self._config.to_dict(),
+                   "n_features": self._n_features, "X": self._X, "y": self._y,
+                   "groups": [(g, c.to_payload()) for g, c in self._children.items()]}
+        return safeio.save_torch(Path(path), payload)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "GroupedMDE":
+        """Rebuild a saved GroupedMDE; predictions are identical to the saved one's."""
+        payload = torch.load(Path(path), map_location="cpu", weights_only=True)
+        if not isinstance(payload, dict) or payload.get("format") != _FORMAT:
+            raise ValueError(f"{path} is not a saved {_FORMAT}")
+        if payload.get("version") != _FORMAT_VERSION:
+            raise ValueError(f"{path} has format version {payload.get('version')}, expected {_FORMAT_VERSION}")
+        mde = cls(payload["config"])
+        mde._n_features, mde._X, mde._y = payload["n_features"], payload["X"], payload["y"]
+        mde._children = {float(g): HeteroscedasticGPMDE.from_payload(p, f"{path} group {g}")
+                         for g, p in payload["groups"]}
+        return mde
+
+    def __repr__(self) -> str:
+        parts = ", ".join(f"{g:g}: {c.n_train}" for g, c in sorted(self._children.items()))
+        return f"GroupedMDE(group_column={self._config.group_column}, n_train per group {{{parts}}})"
+
+
+class GroupedModel(Model):
+    """BoTorch view of a :class:`GroupedMDE`: each row's posterior is its group GP's.
+
+    Rows of different groups are independent by construction; rows of one group are returned
+    with their marginal variances only (a diagonal covariance), which is what the trajectory
+    acquisitions of this project read (per-step mean and std).
+    """
+
+    def __init__(self, mde: GroupedMDE) -> None:
+        super().__init__()
+        self._mde = mde
+
+    @property
+    def num_outputs(self) -> int:
+        return 1
+
+    @property
+    def batch_shape(self) -> torch.Size:
+        return torch.Size()
+
+    def posterior(  # type: ignore[override]
+        self,
+        X: Tensor,
+        output_indices: list[int] | None = None,
+        observation_noise: bool | Tensor = False,
+        posterior_transform: Any = None,
+        **kwargs: Any,
+    ) -> GPyTorchPosterior:
+        """``X``: batch x q x d -> posterior over batch x q (one output)."""
+        flat = X.reshape(-1, X.shape[-1])
+        g = self._mde.group_of(flat).to(flat.device)
+        mean = torch.empty(flat.shape[0], dtype=X.dtype, device=X.device)
+        var = torch.empty_like(mean)
+        for value in torch.unique(g).tolist():
+            rows = g == value
+            model = self._mde._children.get(value, self._mde._prior).model
+            post = model.posterior(flat[rows], observation_noise=observation_noise)
+            mean[rows] = post.mean.reshape(-1).to(X.dtype)
+            var[rows] = post.variance.reshape(-1).to(X.dtype)
+        shape = X.shape[:-1]
+        post = GPyTorchPosterior(MultivariateNormal(mean.reshape(shape), DiagLinearOperator(var.reshape(shape))))
+        return post if posterior_transform is None else posterior_transform(post)

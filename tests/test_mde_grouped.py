@@ -1,0 +1,113 @@
+"""GroupedMDE: one heteroscedastic GP per value of a categorical feature (the action's skill)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+import mde
+from mde import GroupedMDE, HeteroscedasticGPMDE
+from planner import features
+
+T1 = {"num_threads": 1, "fit_maxiter": 60}
+
+
+def _two_skills(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Column 2 is a skill code 0/1; the deviation depends on x0 for skill 0 and on x1 for skill 1,
+    with a different scale, so one stationary kernel over both is a poor prior."""
+    g = torch.Generator().manual_seed(seed)
+    X = torch.rand(n, 4, generator=g, dtype=torch.float64)
+    X[:, 2] = (X[:, 2] > 0.5).double()
+    f = torch.where(X[:, 2] > 0, 0.2 * torch.sin(6.0 * X[:, 1]) ** 2, 0.05 * X[:, 0])
+    y = (f + 0.005 * torch.randn(n, generator=g, dtype=torch.float64)).clamp_min(0.0)
+    return X, y
+
+
+@pytest.fixture(scope="module")
+def grouped() -> tuple[GroupedMDE, torch.Tensor, torch.Tensor]:
+    X, y = _two_skills(160, 0)
+    return GroupedMDE(group_column=2, **T1).fit(X, y), X, y
+
+
+def test_each_group_is_its_own_gp(grouped) -> None:
+    m, X, y = grouped
+    assert sorted(m.groups) == [0.0, 1.0] and m.n_train == len(y)
+    rows = X[:, 2] == 1
+    alone = HeteroscedasticGPMDE(**T1).fit(X[rows], y[rows])
+    for a, b in zip(alone.predict(X[rows]), m.predict(X[rows])):
+        assert torch.equal(a, b)
+
+
+def test_generalises_better_than_one_gp_across_groups() -> None:
+    X, y = _two_skills(160, 0)
+    Xt, yt = _two_skills(400, 1)
+    err_grouped = (GroupedMDE(group_column=2, **T1).fit(X, y).predict(Xt)[0] - yt).abs().mean()
+    err_one = (HeteroscedasticGPMDE(**T1).fit(X, y).predict(Xt)[0] - yt).abs().mean()
+    assert err_grouped < err_one
+
+
+def test_unseen_group_predicts_the_prior(grouped) -> None:
+    m, X, _ = grouped
+    q = X[:3].clone()
+    q[:, 2] = 7.0
+    mean, std = m.predict(q)
+    assert torch.all(mean == 0) and torch.allclose(std, torch.full((3,), m.config.prior_std, dtype=std.dtype))
+
+
+def test_botorch_posterior_matches_predict(grouped) -> None:
+    m, X, _ = grouped
+    Xb = X[:12].reshape(3, 4, 4)
+    post = m.model.posterior(Xb, observation_noise=True)
+    mean, std = m.predict(X[:12])
+    assert post.mean.shape == (3, 4, 1)
+    assert torch.allclose(post.mean.reshape(-1), mean) and torch.allclose(post.variance.reshape(-1).sqrt(), std)
+
+
+def test_save_load_and_pickle_round_trip(grouped, tmp_path) -> None:
+    import pickle
+
+    m, X, _ = grouped
+    back = mde.load(m.save(tmp_path / "m.pt"))
+    assert isinstance(back, GroupedMDE) and torch.equal(back.train_X, m.train_X)
+    assert torch.equal(back.predict(X)[1], m.predict(X)[1])
+    assert torch.equal(pickle.loads(pickle.dumps(m)).predict(X)[0], m.predict(X)[0])
+    assert isinstance(mde.load(HeteroscedasticGPMDE(**T1).save(tmp_path / "h.pt")), HeteroscedasticGPMDE)
+
+
+def test_without_group_column_it_is_one_gp() -> None:
+    X, y = _two_skills(80, 2)
+    a, b = GroupedMDE(**T1).fit(X, y), HeteroscedasticGPMDE(**T1).fit(X, y)
+    assert torch.equal(a.predict(X)[1], b.predict(X)[1])
+
+
+def test_bad_group_column_is_refused() -> None:
+    with pytest.raises(ValueError, match="group_column"):
+        GroupedMDE(group_column=-1)
+    with pytest.raises(ValueError, match="group_column=9"):
+        GroupedMDE(group_column=9).fit(torch.rand(5, 3, dtype=torch.float64), torch.rand(5, dtype=torch.float64))
+    with pytest.raises(ValueError, match="GroupedMDE"):
+        HeteroscedasticGPMDE(group_column=1)
+
+
+def test_default_config_groups_by_the_skill() -> None:
+    """configs/mde/default.yaml's group_column must be the column where features() puts the skill."""
+    from mde import MDEConfig
+
+    cfg = MDEConfig.from_yaml("configs/mde/default.yaml")
+    s, a = np.zeros((2, 5)), np.array([[0.0, 0.3, 0.2], [1.0, 1.4, 0.5]])
+    assert cfg.group_column is not None and np.array_equal(features(s, a)[:, cfg.group_column], a[:, 0])
+
+
+def test_cross_validation_holds_out_whole_groups() -> None:
+    from mde.calibration import cross_validate
+
+    X, y = _two_skills(60, 3)
+    traj = torch.arange(60) // 3  # 20 "trajectories" of 3 steps
+    mean, std = cross_validate(lambda: GroupedMDE(group_column=2, **T1), X, y, traj, folds=4)
+    assert mean.shape == std.shape == y.shape and torch.all(std > 0)
+    # held out: a row's prediction does not come from a fit that saw its own label
+    fitted_all = GroupedMDE(group_column=2, **T1).fit(X, y).predict(X)[0]
+    assert (mean - y).abs().mean() > (fitted_all - y).abs().mean()
+    with pytest.raises(ValueError, match="folds"):
+        cross_validate(lambda: GroupedMDE(**T1), X, y, traj, folds=30)
