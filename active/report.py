@@ -9,16 +9,25 @@ directories and writes:
   seeds with a 95% confidence interval (Student t over seeds; the paper's Fig. 5);
 * ``trajectory_types.png``: stacked ratios of training trajectory types per method (Fig. 4);
 * ``calibration.png``: MDE interval coverage and NLL on held-out target-world transitions per iteration;
-* ``summary.csv`` / ``summary.md``: area under the learning curve per method with its 95% CI.
+* ``summary.csv`` / ``summary.md``: area under the learning curve per method with its 95% CI;
+* ``paired.csv`` (and a second table in ``summary.md``): per method, the difference of its AUC to a
+  reference method's (``--reference``, default ``random_plan`` when present, otherwise every pair),
+  paired over the seeds both have, since a seed fixes the train and test problems for every method;
+  ``paired_seeds.csv`` holds the per-seed differences;
+* with ``--ceiling outputs/ladder/ladder.json``: the ceiling of ``python -m active.ladder`` (an MDE
+  fitted on a large target-world dataset, the best any data collection can hope for) as a dashed line
+  on the test-success and plan-found panels and as a line under the summary table.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 from collections import defaultdict
+from itertools import combinations
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Mapping, Sequence
 
 import matplotlib
 
@@ -33,6 +42,8 @@ from .io import read_csv, write_csv  # noqa: E402
 CATEGORY_ORDER = ("successful_pour", "unsuccessful_pour", "stuck_in_plant", "other")
 CATEGORY_COLOURS = {"successful_pour": "#2c7fb8", "unsuccessful_pour": "#f03b20", "stuck_in_plant": "#31a354",
                     "other": "#bdbdbd"}
+DEFAULT_REFERENCE = "random_plan"
+CEILING_PANELS = {"test_success": "success", "test_plan_found": "found"}  # panel -> key of the ceiling entry
 
 
 def mean_ci(values: Sequence[float], level: float = 0.95) -> tuple[float, float]:
@@ -69,11 +80,18 @@ def _curves(rows: list[dict], key: str) -> dict[str, dict[int, list[float]]]:
     return out
 
 
-def plot_learning_curves(rows: list[dict], path: Path) -> None:
+def plot_learning_curves(rows: list[dict], path: Path,
+                         ceiling: Mapping[str, Any] | None = None) -> dict[str, tuple[float, str]]:
+    """Fig. 5; with ``ceiling`` (see :func:`load_ceiling`) a dashed line at the ceiling's success and
+    plan-found rate, so a reader sees how far each method is from what the MDE can reach at all.
+
+    Returns panel -> (y, label) of the ceiling lines as drawn (read back from the axes)."""
     panels = [("test_success", "test success rate"), ("test_plan_found", "test plan found rate"),
               ("train_goal_reached", "training trajectories reaching the goal")]
     panels = [(k, t) for k, t in panels if all(k in r for r in rows)]
-    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.8), dpi=110, sharey=True)
+    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.8), dpi=110, sharey=True, squeeze=False)
+    axes = axes[0]
+    drawn: dict[str, tuple[float, str]] = {}
     for ax, (key, title) in zip(axes, panels):
         for m, curve in sorted(_curves(rows, key).items()):
             its = sorted(curve)
@@ -82,15 +100,23 @@ def plot_learning_curves(rows: list[dict], path: Path) -> None:
             half = np.array([b for _, b in mc])
             ax.plot(its, mean, marker="o", ms=3, label=m)
             ax.fill_between(its, np.clip(mean - half, 0, 1), np.clip(mean + half, 0, 1), alpha=0.2)
+        if ceiling is not None and key in CEILING_PANELS:
+            line = ax.axhline(float(ceiling[CEILING_PANELS[key]]), color="k", ls="--", lw=1.0,
+                              label=ceiling_label(ceiling))
+            drawn[key] = (float(line.get_ydata()[0]), str(line.get_label()))
         ax.set_xlabel("iteration")
         ax.set_title(title)
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("rate (mean, 95% CI over seeds)")
-    axes[-1].legend(fontsize=8, loc="upper left")
+    # the first panel (test success) has every method and the ceiling: one legend for all panels
+    # beside the last panel, since a ceiling line often runs through the upper left corner
+    legend_at = {"loc": "upper left", "bbox_to_anchor": (1.02, 1)} if ceiling is not None else {"loc": "upper left"}
+    axes[-1].legend(*axes[0].get_legend_handles_labels(), fontsize=8, **legend_at)
     fig.tight_layout()
     safeio.save_figure(fig, path)
     plt.close(fig)
+    return drawn
 
 
 def plot_trajectory_types(rows: list[dict], path: Path) -> dict[str, dict[str, float]]:
@@ -135,16 +161,22 @@ def plot_calibration(rows: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
+def _per_seed(rows: list[dict]) -> dict[str, dict[str, dict[int, tuple]]]:
+    """method -> seed -> iteration -> (test success, plan found, training goal reached); last row wins."""
+    per: dict[str, dict[str, dict[int, tuple]]] = defaultdict(lambda: defaultdict(dict))
+    for r in rows:
+        per[r["method"]][r["seed"]][int(r["iteration"])] = (float(r["test_success"]), float(r["test_plan_found"]),
+                                                            float(r.get("train_goal_reached") or "nan"))
+    return per
+
+
 def summarise(rows: list[dict]) -> list[dict]:
     """Area under the learning curves (mean over iterations) per method, 95% CI over seeds.
 
     Besides test success and plan found, the mean share of training trajectories that reached their
     goal: what the method's choices did while collecting data (the paper's Fig. 4 in one number).
     """
-    per: dict[str, dict[str, dict[int, tuple]]] = defaultdict(lambda: defaultdict(dict))
-    for r in rows:
-        per[r["method"]][r["seed"]][int(r["iteration"])] = (float(r["test_success"]), float(r["test_plan_found"]),
-                                                            float(r.get("train_goal_reached") or "nan"))
+    per = _per_seed(rows)
     out = []
     for m in sorted(per):
         auc_s = [np.mean([v[0] for v in its.values()]) for its in per[m].values()]
@@ -158,15 +190,170 @@ def summarise(rows: list[dict]) -> list[dict]:
     return out
 
 
-def report(dirs: Sequence[Path], out: Path) -> dict:
+def methods_of(rows: list[dict]) -> list[str]:
+    return sorted({r["method"] for r in rows})
+
+
+def pairs_for(methods: Sequence[str], reference: str | None) -> list[tuple[str, str]]:
+    """(method, reference) pairs to compare: every method against ``reference``; with None, against
+    ``random_plan`` when it is there, otherwise every pair. A named reference that no run has is an
+    error listing the methods found (a typo must not silently compare nothing)."""
+    methods = sorted(methods)
+    if reference is not None and reference not in methods:
+        raise ValueError(f"--reference {reference!r} is not among the methods found: {methods}")
+    ref = reference if reference is not None else (DEFAULT_REFERENCE if DEFAULT_REFERENCE in methods else None)
+    if ref is None:
+        return list(combinations(methods, 2))
+    return [(m, ref) for m in methods if m != ref]
+
+
+PAIRED_FIELDS = ["method", "reference", "paired_seeds", "diff_auc_success", "diff_auc_success_ci95", "p_success",
+                 "diff_auc_plan_found", "diff_auc_plan_found_ci95", "p_plan_found", "note"]
+PAIRED_SEED_FIELDS = ["method", "reference", "seed", "iterations", "auc_success", "auc_success_reference",
+                      "diff_auc_success", "auc_plan_found", "auc_plan_found_reference", "diff_auc_plan_found"]
+
+
+def _seed_key(seed: str) -> tuple:
+    try:
+        return 0, float(seed), seed
+    except ValueError:
+        return 1, 0.0, seed
+
+
+def _ttest_p(d: np.ndarray) -> float:
+    """Two-sided paired t-test p-value from the differences; nan for n < 2 or all-equal differences."""
+    d = d[~np.isnan(d)]
+    if len(d) < 2 or float(np.std(d, ddof=1)) == 0.0:
+        return float("nan")
+    return float(stats.ttest_1samp(d, 0.0).pvalue)
+
+
+def paired(rows: list[dict], reference: str | None = None) -> tuple[list[dict], list[dict]]:
+    """AUC differences method - reference, paired over seeds (a seed fixes the train and test problems
+    for every method, so the seed-to-seed spread of problem difficulty cancels in the difference).
+
+    Only seeds both methods ran count, and per seed only the iterations both have (a run still going
+    would otherwise be compared on a shorter, lower part of its curve). Returns (one row per pair with
+    mean difference, 95% Student-t CI half-width over seeds as :func:`mean_ci`, paired seeds, p-value;
+    one row per pair and seed)."""
+    per = _per_seed(rows)
+    out, seeds_out = [], []
+    for m, ref in pairs_for(list(per), reference):
+        ds, dp = [], []
+        for seed in sorted(set(per[m]) & set(per[ref]), key=_seed_key):
+            its = sorted(set(per[m][seed]) & set(per[ref][seed]))
+            if not its:
+                continue
+            a_s, a_p = (float(np.mean([per[m][seed][i][k] for i in its])) for k in (0, 1))
+            r_s, r_p = (float(np.mean([per[ref][seed][i][k] for i in its])) for k in (0, 1))
+            ds.append(a_s - r_s)
+            dp.append(a_p - r_p)
+            seeds_out.append({"method": m, "reference": ref, "seed": seed, "iterations": len(its),
+                              "auc_success": a_s, "auc_success_reference": r_s, "diff_auc_success": a_s - r_s,
+                              "auc_plan_found": a_p, "auc_plan_found_reference": r_p,
+                              "diff_auc_plan_found": a_p - r_p})
+        (s, sh), (p, ph) = mean_ci(ds), mean_ci(dp)
+        n = len(ds)
+        note = "no seed in common" if n == 0 else "one paired seed: no CI, not a test" if n == 1 else ""
+        out.append({"method": m, "reference": ref, "paired_seeds": n, "diff_auc_success": s,
+                    "diff_auc_success_ci95": sh, "p_success": _ttest_p(np.asarray(ds)),
+                    "diff_auc_plan_found": p, "diff_auc_plan_found_ci95": ph,
+                    "p_plan_found": _ttest_p(np.asarray(dp)), "note": note})
+    return out, seeds_out
+
+
+def paired_table(rows: list[dict]) -> list[str]:
+    """Markdown lines; a difference from fewer than two seeds says so instead of showing ± 0."""
+    if not rows:
+        return ["No paired comparison: only one method in these runs."]
+    lines = ["| method − reference | paired seeds | Δ AUC success (95% CI) | p | Δ AUC plan found (95% CI) | p |",
+             "|---|---|---|---|---|---|"]
+
+    def cell(mean: float, half: float, n: int) -> str:
+        if n == 0:
+            return "-"
+        return f"{mean:+.3f} (n=1: no CI)" if n == 1 else f"{mean:+.3f} ± {half:.3f}"
+
+    def pval(p: float) -> str:
+        return "-" if math.isnan(p) else f"{p:.3f}"
+
+    for r in rows:
+        n = r["paired_seeds"]
+        lines.append(f"| {r['method']} − {r['reference']} | {n} | "
+                     f"{cell(r['diff_auc_success'], r['diff_auc_success_ci95'], n)} | {pval(r['p_success'])} | "
+                     f"{cell(r['diff_auc_plan_found'], r['diff_auc_plan_found_ci95'], n)} | "
+                     f"{pval(r['p_plan_found'])} |")
+    lines.append("")
+    lines.append("Differences of the area under the curve, paired over the seeds both methods ran (and per seed "
+                 "the iterations both have); 95% Student-t CI over those seeds, p from a two-sided paired t-test. "
+                 "With one paired seed there is no CI and no test.")
+    return lines
+
+
+def load_ceiling(path: Path) -> dict:
+    """The ``ceiling`` entry of a ``ladder.json`` (``python -m active.ladder``), checked, so that a wrong
+    file fails here with its name rather than as a missing line in a figure."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"--ceiling {path}: no such file (expected the ladder.json of python -m active.ladder)")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"--ceiling {path}: not a JSON file ({e})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("ceiling"), dict):
+        raise ValueError(f"--ceiling {path}: no 'ceiling' entry; run python -m active.ladder --rungs ceiling "
+                         f"(the file has {sorted(data) if isinstance(data, dict) else type(data).__name__})")
+    return check_ceiling(data["ceiling"], f"--ceiling {path}")
+
+
+def check_ceiling(ceiling: Mapping[str, Any], where: str = "ceiling") -> dict:
+    """``found`` and ``success`` must be rates in [0, 1]; ``train_trajectories`` is kept for the label."""
+    c = dict(ceiling)
+    for key in ("found", "success"):
+        if key not in c:
+            raise ValueError(f"{where}: the 'ceiling' entry has no '{key}' (has {sorted(c)})")
+        v = c[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= float(v) <= 1.0:
+            raise ValueError(f"{where}: ceiling.{key} = {v!r} is not a rate in [0, 1]")
+    return c
+
+
+def ceiling_label(ceiling: Mapping[str, Any]) -> str:
+    n = ceiling.get("train_trajectories")
+    return f"ceiling (MDE on {n} trajectories)" if n is not None else "ceiling (MDE on target-world data)"
+
+
+def ceiling_line(ceiling: Mapping[str, Any], source: str | None = None) -> str:
+    """One sentence for summary.md: the ceiling's rates and where they come from."""
+    n = ceiling.get("train_trajectories")
+    fit = f"MDE fitted on {n} target-world trajectories" if n is not None else "MDE fitted on target-world data"
+    n_test = f" on {ceiling['n']} test problems" if ceiling.get("n") is not None else ""
+    src = f", {source}" if source else ""
+    return (f"Ceiling ({fit}{src}): test success {float(ceiling['success']):.3f}, "
+            f"plan found {float(ceiling['found']):.3f}{n_test}.")
+
+
+def report(dirs: Sequence[Path], out: Path, reference: str | None = None,
+           ceiling: Path | str | Mapping[str, Any] | None = None) -> dict:
+    """Figures and tables of the runs below ``dirs``; ``reference`` and ``ceiling`` (a ladder.json, or
+    its ``ceiling`` entry) are checked before anything is drawn."""
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     results = collect(dirs, "results.csv")
     if not results:
         raise FileNotFoundError(f"no results.csv under {[str(d) for d in dirs]}")
-    plot_learning_curves(results, out / "learning_curves.png")
+    pairs_for(methods_of(results), reference)  # an unknown reference fails before any plotting
+    ceiling_src = None
+    if isinstance(ceiling, (str, Path)):
+        ceiling_src, ceiling = str(ceiling), load_ceiling(Path(ceiling))
+    elif ceiling is not None:
+        ceiling = check_ceiling(ceiling)
+    out.mkdir(parents=True, exist_ok=True)
+    ceiling_lines = plot_learning_curves(results, out / "learning_curves.png", ceiling)
     summary = summarise(results)
     write_csv(out / "summary.csv", summary)
+    pair_rows, pair_seeds = paired(results, reference)
+    write_csv(out / "paired.csv", pair_rows, fields=PAIRED_FIELDS)
+    write_csv(out / "paired_seeds.csv", pair_seeds, fields=PAIRED_SEED_FIELDS)
     lines = ["| method | seeds | AUC success (95% CI) | AUC plan found (95% CI) | final success (95% CI) "
              "| training goal reached (95% CI) |",
              "|---|---|---|---|---|---|"]
@@ -175,8 +362,12 @@ def report(dirs: Sequence[Path], out: Path) -> dict:
                      f"{s['auc_plan_found']:.3f} ± {s['auc_plan_found_ci95']:.3f} | "
                      f"{s['final_success']:.3f} ± {s['final_success_ci95']:.3f} | "
                      f"{s['train_goal_reached']:.3f} ± {s['train_goal_reached_ci95']:.3f} |")
+    if ceiling is not None:
+        lines += ["", ceiling_line(ceiling, ceiling_src)]
+    lines += ["", *paired_table(pair_rows)]
     safeio.write_text(out / "summary.md", "\n".join(lines) + "\n")
-    made = {"learning_curves": str(out / "learning_curves.png"), "summary": summary, "table": "\n".join(lines)}
+    made = {"learning_curves": str(out / "learning_curves.png"), "summary": summary, "table": "\n".join(lines),
+            "paired": pair_rows, "paired_seeds": pair_seeds, "ceiling": ceiling, "ceiling_lines": ceiling_lines}
     cats = collect(dirs, "categories.csv")
     if cats:
         made["trajectory_types"] = plot_trajectory_types(cats, out / "trajectory_types.png")
@@ -191,8 +382,16 @@ def main(argv: list[str] | None = None) -> None:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("dirs", nargs="+", type=Path, help="run or sweep directories (searched recursively)")
     ap.add_argument("--out", type=Path, default=Path("report"))
+    ap.add_argument("--reference", default=None, metavar="METHOD",
+                    help=f"method the others are compared with, paired over seeds (default: {DEFAULT_REFERENCE} "
+                         "when present, otherwise every pair)")
+    ap.add_argument("--ceiling", type=Path, default=None, metavar="LADDER_JSON",
+                    help="ladder.json of python -m active.ladder: its ceiling as a dashed line and in the summary")
     args = ap.parse_args(argv)
-    made = report(args.dirs, args.out)
+    try:
+        made = report(args.dirs, args.out, reference=args.reference, ceiling=args.ceiling)
+    except (ValueError, FileNotFoundError) as e:
+        raise SystemExit(f"error: {e}") from None
     print(made["table"])
     print(f"figures in {args.out}")
 

@@ -1,10 +1,14 @@
 """Aggregation of runs into the summary table and figures."""
 
+import json
+import math
+
 import numpy as np
 import pytest
+from scipy import stats
 
 from active.io import read_csv, write_csv
-from active.report import mean_ci, report
+from active.report import load_ceiling, main, mean_ci, paired, report
 
 
 def test_mean_ci_matches_student_t_by_hand():
@@ -44,3 +48,103 @@ def test_report_aggregates_seeds_and_methods(tmp_path):
 def test_report_without_results_says_so(tmp_path):
     with pytest.raises(FileNotFoundError, match="no results.csv"):
         report([tmp_path], tmp_path / "rep")
+
+
+def _rows(method, seed, success, found):
+    return [{"method": method, "seed": str(seed), "iteration": str(i + 1), "test_success": str(s),
+             "test_plan_found": str(f)} for i, (s, f) in enumerate(zip(success, found))]
+
+
+def test_paired_differences_match_student_t_and_ignore_unpaired_seeds():
+    # AUCs (mean over 2 iterations): A success 0.5, 0.6, 0.9 on seeds 0-2; B success 0.3, 0.5, 0.5.
+    # Seed 3 only for A, seed 9 only for B: both must be ignored.
+    rows = (_rows("A", 0, [0.4, 0.6], [1, 1]) + _rows("A", 1, [0.5, 0.7], [1, 1]) + _rows("A", 2, [0.8, 1.0], [1, 1])
+            + _rows("A", 3, [1.0, 1.0], [1, 1])
+            + _rows("B", 0, [0.2, 0.4], [0.5, 0.5]) + _rows("B", 1, [0.5, 0.5], [1, 1])
+            + _rows("B", 2, [0.4, 0.6], [0.5, 1]) + _rows("B", 9, [0.0, 0.0], [0, 0]))
+    pairs, seeds = paired(rows, reference="B")
+    assert len(pairs) == 1
+    r = pairs[0]
+    d = np.array([0.2, 0.1, 0.4])
+    assert (r["method"], r["reference"], r["paired_seeds"]) == ("A", "B", 3)
+    assert r["diff_auc_success"] == pytest.approx(d.mean())
+    half = stats.t.ppf(0.975, 2) * d.std(ddof=1) / math.sqrt(3)
+    assert r["diff_auc_success_ci95"] == pytest.approx(half)
+    assert r["p_success"] == pytest.approx(stats.ttest_rel([0.5, 0.6, 0.9], [0.3, 0.5, 0.5]).pvalue)
+    dp = np.array([0.5, 0.0, 0.25])
+    assert r["diff_auc_plan_found"] == pytest.approx(dp.mean())
+    assert r["diff_auc_plan_found_ci95"] == pytest.approx(stats.t.ppf(0.975, 2) * dp.std(ddof=1) / math.sqrt(3))
+    assert [s["seed"] for s in seeds] == ["0", "1", "2"]
+    assert [s["diff_auc_success"] for s in seeds] == pytest.approx(list(d))
+
+
+def test_paired_uses_only_iterations_both_seeds_have():
+    # B's seed 0 stopped after iteration 1: A is compared on its iteration 1 only
+    rows = _rows("A", 0, [0.2, 0.8], [1, 1]) + _rows("B", 0, [0.1], [1])
+    (r,), (s,) = paired(rows, reference="B")
+    assert s["iterations"] == 1
+    assert r["diff_auc_success"] == pytest.approx(0.1)
+
+
+def test_paired_default_reference_and_all_pairs():
+    rows = _rows("A", 0, [0.2], [1]) + _rows("B", 0, [0.1], [1]) + _rows("random_plan", 0, [0.0], [1])
+    assert {(r["method"], r["reference"]) for r in paired(rows)[0]} == {("A", "random_plan"), ("B", "random_plan")}
+    rows = _rows("A", 0, [0.2], [1]) + _rows("B", 0, [0.1], [1]) + _rows("C", 0, [0.0], [1])
+    assert {(r["method"], r["reference"]) for r in paired(rows)[0]} == {("A", "B"), ("A", "C"), ("B", "C")}
+
+
+def test_report_writes_paired_table_and_flags_one_seed(tmp_path):
+    _write_run(tmp_path / "a" / "s0", "active_balanced", 0, [0.2, 0.6])
+    _write_run(tmp_path / "a" / "s1", "active_balanced", 1, [0.4, 0.8])
+    _write_run(tmp_path / "b", "random_plan", 0, [0.0, 0.2])
+    made = report([tmp_path], tmp_path / "rep")
+    (r,) = read_csv(tmp_path / "rep" / "paired.csv")
+    assert (r["method"], r["reference"], r["paired_seeds"]) == ("active_balanced", "random_plan", "1")
+    assert float(r["diff_auc_success"]) == pytest.approx(0.3)
+    assert float(r["diff_auc_success_ci95"]) == 0.0 and math.isnan(float(r["p_success"]))
+    assert "no CI" in r["note"]
+    md = (tmp_path / "rep" / "summary.md").read_text()
+    assert "active_balanced − random_plan | 1 | +0.300 (n=1: no CI)" in md
+    assert made["table"].strip() == md.strip()  # what main prints
+
+
+def test_unknown_reference_is_refused_before_plotting(tmp_path):
+    _write_run(tmp_path / "a", "active_balanced", 0, [0.2, 0.6])
+    _write_run(tmp_path / "b", "random_plan", 0, [0.0, 0.2])
+    with pytest.raises(ValueError, match=r"'random_actions' is not among the methods found: "
+                                         r"\['active_balanced', 'random_plan'\]"):
+        report([tmp_path], tmp_path / "rep", reference="random_actions")
+    assert not (tmp_path / "rep").exists()
+    with pytest.raises(SystemExit, match="random_actions"):
+        main([str(tmp_path), "--out", str(tmp_path / "rep"), "--reference", "random_actions"])
+
+
+def _ladder(path, **entries):
+    path.write_text(json.dumps({"config": {}, "seconds": 1.0, **entries}))
+    return path
+
+
+def test_ceiling_line_on_success_and_plan_found_panels(tmp_path):
+    _write_run(tmp_path / "a", "active_balanced", 0, [0.2, 0.6])
+    ladder = _ladder(tmp_path / "ladder.json", ceiling={"train_trajectories": 128, "n": 30, "found": 0.9,
+                                                        "success": 0.7})
+    made = report([tmp_path / "a"], tmp_path / "rep", ceiling=ladder)
+    label = "ceiling (MDE on 128 trajectories)"
+    assert made["ceiling_lines"] == {"test_success": (0.7, label), "test_plan_found": (0.9, label)}
+    md = (tmp_path / "rep" / "summary.md").read_text()
+    assert "Ceiling (MDE fitted on 128 target-world trajectories" in md
+    assert "test success 0.700, plan found 0.900 on 30 test problems" in md
+    assert report([tmp_path / "a"], tmp_path / "rep2")["ceiling_lines"] == {}
+
+
+def test_ladder_without_ceiling_is_refused(tmp_path):
+    ladder = _ladder(tmp_path / "ladder.json", source_model_only={"found": 0.5, "success": 0.4})
+    with pytest.raises(ValueError, match=r"ladder\.json: no 'ceiling' entry"):
+        load_ceiling(ladder)
+    _write_run(tmp_path / "a", "active_balanced", 0, [0.2, 0.6])
+    with pytest.raises(SystemExit, match="no 'ceiling' entry"):
+        main([str(tmp_path / "a"), "--out", str(tmp_path / "rep"), "--ceiling", str(ladder)])
+    assert not (tmp_path / "rep").exists()
+    bad = _ladder(tmp_path / "bad.json", ceiling={"train_trajectories": 128, "success": 0.7})
+    with pytest.raises(ValueError, match=r"bad\.json: the 'ceiling' entry has no 'found'"):
+        load_ceiling(bad)
