@@ -27,7 +27,8 @@ import numpy as np
 import torch
 
 import safeio
-from planner import ActionSampler, Planner, PlannerConfig, features
+from planner import ActionSampler, PlannerConfig, features
+from planner.pool import PlanPool, PlanRequest, resolve_workers
 from sim.execute import PouringExecutor
 from sim.problems import Problem, sample_problems
 from sim.skills import pour
@@ -67,6 +68,7 @@ def comparable_config(cfg: Mapping[str, Any]) -> dict:
         c.get("dynamics", {}).pop(k, None)
     for k in ("wandb", "progress", "method"):
         c.pop(k, None)
+    c.get("planner", {}).pop("workers", None)  # where plans are computed, not what they are
     for k, off in NEUTRAL_EXPERIMENT_SETTINGS.items():  # a setting added later, at its "off" value
         if k in c.get("experiment", {}) and c["experiment"][k] == off:
             c["experiment"].pop(k)
@@ -101,13 +103,26 @@ class Context:
     timings: dict = field(default_factory=dict)
     #: state digests this run may resume besides its own (legacy digests; see active.rundir.accepted_digests)
     accepted_digests: frozenset = frozenset()
+    #: runs the planner calls (planner.workers processes; shared by all methods); None: in-process
+    pool: PlanPool | None = None
+
+    def planner_pool(self) -> PlanPool:
+        if self.pool is None:
+            self.pool = PlanPool(self.dynamics, self.planner_cfg, workers=1)
+        return self.pool
 
 
 def build_planner_config(world: WorldConfig, planner: Mapping[str, Any], exp: ExperimentConfig) -> PlannerConfig:
-    """The planner's ranges come from the world (one source of truth for skill limits)."""
+    """The planner's ranges come from the world (one source of truth for skill limits).
+
+    ``planner.workers`` is validated here but is not a :class:`PlannerConfig` field (it says where
+    plans are computed, not what they are): see :func:`planner_workers`.
+    """
     sk = world.skills
     d = dict(planner)
     d.pop("_target_", None)
+    planner_workers(d)
+    d.pop("workers", None)
     d.update(move_x=list(sk["move"]["x"]), move_y=list(sk["move"]["y"]), pour_theta=list(sk["pour"]["theta"]),
              pour_hold=list(sk["pour"]["hold"]), max_actions=int(sk["max_actions"]),
              goal_tol=_plan_goal_tol(world, exp), spill_limit=float(world.problems["max_spill"]),
@@ -119,6 +134,11 @@ def build_planner_config(world: WorldConfig, planner: Mapping[str, Any], exp: Ex
     hi[2] = max(hi[2], sk["pour"]["theta"][1])
     d["state_low"], d["state_high"] = lo, hi
     return PlannerConfig.from_dict(d)
+
+
+def planner_workers(planner: Mapping[str, Any]) -> int:
+    """Planner processes from ``planner.workers`` (an integer >= 1 or ``auto``; absent: ``auto``)."""
+    return resolve_workers(planner.get("workers", "auto"), "planner.workers")
 
 
 def _plan_goal_tol(world: WorldConfig, exp: ExperimentConfig) -> float:
@@ -237,21 +257,21 @@ class MethodRun:
 
     def _iteration(self, it: int) -> dict:
         ctx, exp = self.ctx, self.ctx.exp
+        ctx.planner_pool().start()  # worker start-up (first iteration of a run only) is not planning time
         t_start = time.perf_counter()
         beta = exp.beta(it)
         problems = sample_problems(ctx.world, exp.trajectories_per_iteration, derive_seed(ctx.seed, "train", it),
                                    world="target")
-        planner = Planner(ctx.dynamics, self.mde if self.mde.is_fitted else None, ctx.planner_cfg)
+        plan_mde = self.mde if self.mde.is_fitted else None  # the precondition the planner uses
         t_plan = t_sim = t_fit = 0.0
         fallbacks = reached = 0
         for c0 in range(0, len(problems), exp.refit_every):
             chunk = problems[c0:c0 + exp.refit_every]
-            choices = []
-            for j, prob in enumerate(chunk):
-                k = c0 + j
-                tp = time.perf_counter()
-                choices.append(self._choose(planner, prob, it, k, beta))
-                t_plan += time.perf_counter() - tp
+            tp = time.perf_counter()
+            cand_sets = self._plan_chunk(chunk, plan_mde, it, c0, beta)  # one pool call per chunk
+            choices = [self._choose(prob, cands, it, c0 + j)
+                       for j, (prob, cands) in enumerate(zip(chunk, cand_sets))]
+            t_plan += time.perf_counter() - tp
             ts = time.perf_counter()
             results = execute_padded(ctx, chunk, [c.actions for c in choices], exp.refit_every)
             t_sim += time.perf_counter() - ts
@@ -273,10 +293,10 @@ class MethodRun:
             tf = time.perf_counter()
             if len(self.state["y"]):
                 self.mde.fit(self.state["X"], self.state["y"])  # a failed fit keeps the previous one
-                planner.mde = self.mde
+                plan_mde = self.mde
             t_fit += time.perf_counter() - tf
         tt = time.perf_counter()
-        success, found = self._test(planner, it)
+        success, found = self._test(plan_mde, it)
         t_test = time.perf_counter() - tt
         self._calibrate(it)
         row = {"method": self.method, "seed": ctx.seed, "iteration": it + 1,
@@ -289,7 +309,17 @@ class MethodRun:
         self.state["results"].append(row)
         return row
 
-    def _choose(self, planner: Planner, prob: Problem, it: int, k: int, beta: float):
+    def _plan_chunk(self, chunk: list[Problem], mde: Any, it: int, c0: int, beta: float) -> list:
+        """Candidate sets of the chunk's problems (problem k = c0 + j), planned in one pool call."""
+        ctx, exp = self.ctx, self.ctx.exp
+        if self.method == "random_actions":  # no planning
+            return [None] * len(chunk)
+        reqs = [PlanRequest("candidates", prob.start, prob.goal, n=exp.candidates, beta=beta, d_max=exp.d_max,
+                            seed=derive_seed(ctx.seed, self.method, "plan", it, c0 + j))
+                for j, prob in enumerate(chunk)]
+        return ctx.planner_pool().run(reqs, mde)
+
+    def _choose(self, prob: Problem, cands: Any, it: int, k: int):
         ctx, exp = self.ctx, self.ctx.exp
         rng = np.random.default_rng(derive_seed(ctx.seed, self.method, "choose", it, k))
 
@@ -298,21 +328,17 @@ class MethodRun:
 
         if self.method == "random_actions":
             return choose(self.method, [], rng, random_actions)
-        cands = planner.plan_candidates(prob.start, prob.goal, n=exp.candidates, beta=beta, d_max=exp.d_max,
-                                        seed=derive_seed(ctx.seed, self.method, "plan", it, k))
         trajs = list(cands.candidates)
         if METHODS[self.method] is not None and not self.mde.is_fitted:
             # no data yet: every candidate has the same prior score; pick one at random (seeded)
             return choose("random_plan", trajs, rng, random_actions)
         return choose(self.method, trajs, rng, random_actions, lambda c: self.make_acq(self.mde, c))
 
-    def _test(self, planner: Planner, it: int) -> tuple[float, float]:
+    def _test(self, mde: Any, it: int) -> tuple[float, float]:
         ctx, exp = self.ctx, self.ctx.exp
-        plans = []
-        for k, prob in enumerate(ctx.test_problems):
-            res = planner.plan(prob.start, prob.goal, beta=exp.beta_test, d_max=exp.d_max,
-                               seed=derive_seed(ctx.seed, "test-plan", it, k))
-            plans.append(res.trajectory if res.found else None)
+        reqs = [PlanRequest("plan", prob.start, prob.goal, beta=exp.beta_test, d_max=exp.d_max,
+                            seed=derive_seed(ctx.seed, "test-plan", it, k)) for k, prob in enumerate(ctx.test_problems)]
+        plans = [res.trajectory if res.found else None for res in ctx.planner_pool().run(reqs, mde)]
         idx = [k for k, p in enumerate(plans) if p is not None]
         success = refined = 0
         if idx:

@@ -40,6 +40,7 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
 
     import dynamics
     from planner import ActionSampler
+    from planner.pool import PlanPool
     from sim.execute import PouringExecutor
     from sim.problems import sample_problems
     from sim.world import WorldConfig
@@ -47,7 +48,7 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     from .experiment import ExperimentConfig
     from .io import write_json
     from .loop import (Context, MethodRun, acquisition_factory, build_planner_config, derive_seed,
-                       make_calibration_set)
+                       make_calibration_set, planner_workers)
     from .preflight import check_dynamics, check_geometry, check_seed, check_writable
     from .report import report
     from .rundir import check_run_directory, clean_leftovers, load_calibration, save_calibration
@@ -65,13 +66,14 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     check_geometry(world)
     planner_cfg = build_planner_config(world, cfg["planner"], exp)
     check_seed(planner_cfg.seed, "planner.seed")
+    workers = planner_workers(cfg["planner"])
     make_acq = acquisition_factory(cfg["acquisition"], exp)
     mde_cfg = dict(cfg["mde"])
 
     def make_mde():
         return instantiate(mde_cfg, _convert_="all")
 
-    make_mde()  # validates the MDE config
+    mde_module = type(make_mde()).__module__  # validates the MDE config; planner workers import this module up front
     wandb_cfg = dict(cfg.get("wandb", {}))
     if wandb_cfg.get("mode", "offline") not in ("offline", "online", "disabled"):
         raise ValueError(f"wandb.mode = {wandb_cfg.get('mode')!r}: allowed one of ('offline', 'online', 'disabled')")
@@ -98,18 +100,20 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
             calibration = save_calibration(cal_path, make_calibration_set(
                 world, dyn, executor, ActionSampler(planner_cfg), exp.calibration_trajectories,
                 exp.random_actions_length, seed), cfg)
-        ctx = Context(cfg=cfg, exp=exp, world=world, planner_cfg=planner_cfg, dynamics=dyn, executor=executor,
-                      test_problems=test_problems, calibration=calibration, out=out, seed=seed, progress=progress,
-                      accepted_digests=accepted)
-        for method in exp.methods:
-            tracker = Tracker(wandb_cfg.get("mode", "offline"), wandb_cfg.get("project", "active-mde"),
-                              f"{exp.name}-{method}-seed{seed}", cfg, out, entity=wandb_cfg.get("entity"),
-                              group=f"{exp.name}-seed{seed}")
-            MethodRun(ctx, method, make_mde, make_acq, tracker).run()
-            made = report([out], out / "report")  # after every method: figures for W&B and partial runs
-            tracker.log_images({"learning_curves": out / "report" / "learning_curves.png",
-                                "trajectory_types": out / "report" / "trajectory_types.png"})
-            tracker.finish()
+        # planner worker processes (spawned on first use, shared by all methods; results do not depend on them)
+        with PlanPool(dyn, planner_cfg, workers, preload=[mde_module]) as pool:
+            ctx = Context(cfg=cfg, exp=exp, world=world, planner_cfg=planner_cfg, dynamics=dyn, executor=executor,
+                          test_problems=test_problems, calibration=calibration, out=out, seed=seed,
+                          progress=progress, accepted_digests=accepted, pool=pool)
+            for method in exp.methods:
+                tracker = Tracker(wandb_cfg.get("mode", "offline"), wandb_cfg.get("project", "active-mde"),
+                                  f"{exp.name}-{method}-seed{seed}", cfg, out, entity=wandb_cfg.get("entity"),
+                                  group=f"{exp.name}-seed{seed}")
+                MethodRun(ctx, method, make_mde, make_acq, tracker).run()
+                made = report([out], out / "report")  # after every method: figures for W&B and partial runs
+                tracker.log_images({"learning_curves": out / "report" / "learning_curves.png",
+                                    "trajectory_types": out / "report" / "trajectory_types.png"})
+                tracker.finish()
         executor.close()
     print(made["table"])
     print(f"results and figures in {out} ({time.perf_counter() - t0:.0f} s)")

@@ -59,4 +59,8 @@ class ContactAwareDynamics:
         return self._apply(s, a, np.asarray(out, float))[0]
 
     def __getattr__(self, name: str) -> Any:  # info, save, cfg, ... of the wrapped model
+        # only called for names not found normally; during unpickling ``model`` is not set yet, and
+        # forwarding it (or a dunder such as __setstate__) would recurse without end
+        if name == "model" or (name.startswith("__") and name.endswith("__")):
+            raise AttributeError(name)
         return getattr(self.model, name)

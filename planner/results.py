@@ -36,6 +36,11 @@ class Trajectory:
     def __len__(self) -> int:
         return len(self.actions)
 
+    def __reduce__(self):
+        # rebuilt through __init__: unpickled arrays (e.g. from a planner worker process) would
+        # otherwise come back writable
+        return (type(self), (self.actions, self.states, self.mu, self.sigma))
+
     @property
     def features(self) -> np.ndarray:
         """MDE features of the T steps, [T, 8]."""

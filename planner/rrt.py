@@ -505,19 +505,9 @@ class Planner:
         trees: two runs practically never share a continuous action sequence, and exact
         duplicates are dropped.
         """
-        c = self.config
-        n = c.n_candidates if n is None else int(n)
-        if n < 1:
-            raise ValueError(f"n={n} candidates must be >= 1")
-        root = np.random.SeedSequence(c.seed if seed is None else seed)
-        runs, cands = [], []
-        for child in root.spawn(n):
-            r = self.plan(start, goal, beta=beta, d_max=d_max, tol=tol, seed=child,
-                          time_budget=time_budget, propagation_budget=propagation_budget)
-            runs.append(r)
-            if r.trajectory is not None and not any(r.trajectory.same_as(o) for o in cands):
-                cands.append(r.trajectory)
-        return CandidateSet(candidates=cands, runs=runs)
+        runs = [self.plan(start, goal, beta=beta, d_max=d_max, tol=tol, seed=child, time_budget=time_budget,
+                          propagation_budget=propagation_budget) for child in candidate_seeds(self.config, n, seed)]
+        return collect_candidates(runs)
 
     # -- internals --------------------------------------------------------------------------------
     def _run(self, start: np.ndarray, g: float, tol: float, beta: float, d_max: float,
@@ -633,6 +623,28 @@ class Planner:
         rrt.clear()
         pdef.clearGoal()
         return found_node
+
+
+def candidate_seeds(config: PlannerConfig, n: int | None = None, seed: int | None = None
+                    ) -> list[np.random.SeedSequence]:
+    """Seeds of the ``n`` runs of :meth:`Planner.plan_candidates` (``None``: the config's values).
+
+    Separate so that the runs can be planned elsewhere (:mod:`planner.pool`) and assembled by
+    :func:`collect_candidates` into the same :class:`CandidateSet`.
+    """
+    n = config.n_candidates if n is None else int(n)
+    if n < 1:
+        raise ValueError(f"n={n} candidates must be >= 1")
+    return np.random.SeedSequence(config.seed if seed is None else seed).spawn(n)
+
+
+def collect_candidates(runs: list[PlanResult]) -> CandidateSet:
+    """The candidate set of runs in seed order: the distinct trajectories found, every run's stats."""
+    cands: list[Trajectory] = []
+    for r in runs:
+        if r.trajectory is not None and not any(r.trajectory.same_as(o) for o in cands):
+            cands.append(r.trajectory)
+    return CandidateSet(candidates=cands, runs=list(runs))
 
 
 if ob is not None:

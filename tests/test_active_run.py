@@ -94,6 +94,23 @@ def test_resume_after_kill_gives_identical_results(cache, straight_run, tmp_path
         assert torch.equal(a["X"], b["X"]) and torch.equal(a["y"], b["y"])
 
 
+@pytest.mark.slow  # one more tiny run, ~40 s on 2 cores; tests/test_planner_pool.py checks the pool itself by default
+def test_planner_workers_do_not_change_results(cache, straight_run, tmp_path):
+    """The straight run planned with planner.workers=auto; another process count gives the same results."""
+    from planner.pool import resolve_workers
+
+    straight, _ = straight_run
+    other = 1 if resolve_workers("auto") > 1 else 2
+    out = tmp_path / f"workers{other}"
+    run_experiment(compose_config(tiny_overrides(cache) + [f"planner.workers={other}"]), out)
+    for method in ("active_balanced", "random_actions"):
+        assert _comparable(out / method / "results.csv") == _comparable(straight / method / "results.csv")
+        for name in ("categories.csv", "calibration.csv"):
+            assert read_csv(out / method / name) == read_csv(straight / method / name)
+        a, b = torch.load(out / method / "dataset.pt"), torch.load(straight / method / "dataset.pt")
+        assert torch.equal(a["X"], b["X"]) and torch.equal(a["y"], b["y"])
+
+
 @pytest.mark.parametrize("override,match", [
     ("method=active_bold", "method = 'active_bold': allowed one of"),
     ("experiment.iterations=0", "experiment.iterations = 0: allowed an integer >= 1"),

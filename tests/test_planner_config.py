@@ -19,6 +19,7 @@ YAML = Path(__file__).resolve().parents[1] / "configs" / "planner" / "default.ya
 
 def test_yaml_mirrors_dataclass_defaults():
     d = yaml.safe_load(YAML.read_text())
+    assert d.pop("workers") == "auto"  # process count of planner.pool, deliberately not a PlannerConfig field
     assert d == PlannerConfig().to_dict()
     assert PlannerConfig.from_dict(d) == PlannerConfig()
 
