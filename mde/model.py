@@ -248,17 +248,23 @@ class HeteroscedasticGPMDE:
         prev_noise: SingleTaskGP | None = None
         best = None
         for it in range(1, cfg.max_iters + 1):
-            log_noise = _empirical_log_noise(current, cfg) + math.log(sigma2)  # label units
-            noise_gp = build_noise_gp(X, log_noise, nu=cfg.nu, bounds=build_kw["bounds"])
-            if prev_noise is not None:  # warm start: later iterations move little
-                noise_gp.covar_module.load_state_dict(prev_noise.covar_module.state_dict())
-                noise_gp.likelihood.load_state_dict(prev_noise.likelihood.state_dict())
-            fit_gp(noise_gp, **fit_kw)
-            noise_z = _noise_at(noise_gp, X, sigma2, cfg)
-            train_Yvar = noise_z * sigma2
-            mean_gp = build_mean_gp(X, y, train_Yvar=train_Yvar, **build_kw)
-            mean_gp.covar_module.load_state_dict(current.covar_module.state_dict())
-            ml = fit_gp(mean_gp, **fit_kw)
+            try:
+                log_noise = _empirical_log_noise(current, cfg) + math.log(sigma2)  # label units
+                noise_gp = build_noise_gp(X, log_noise, nu=cfg.nu, bounds=build_kw["bounds"])
+                if prev_noise is not None:  # warm start: later iterations move little
+                    noise_gp.covar_module.load_state_dict(prev_noise.covar_module.state_dict())
+                    noise_gp.likelihood.load_state_dict(prev_noise.likelihood.state_dict())
+                fit_gp(noise_gp, **fit_kw)
+                noise_z = _noise_at(noise_gp, X, sigma2, cfg)
+                train_Yvar = noise_z * sigma2
+                mean_gp = build_mean_gp(X, y, train_Yvar=train_Yvar, **build_kw)
+                mean_gp.covar_module.load_state_dict(current.covar_module.state_dict())
+                ml = fit_gp(mean_gp, **fit_kw)
+            except _FIT_ERRORS as err:
+                # a few extreme labels among many near-zero ones can make the log-noise GP singular;
+                # keep the best iteration so far (or the homoscedastic GP), do not lose the whole fit
+                info["heteroscedastic_error"] = f"iteration {it}: {err}"
+                break
             info["log_ml_history"].append(ml)
             improved_by = math.inf if best is None else ml - best[3]
             if improved_by > 0:
@@ -266,6 +272,11 @@ class HeteroscedasticGPMDE:
             if improved_by <= cfg.min_improvement:
                 break
             current, prev_noise = mean_gp, noise_gp
+        if best is None:
+            warnings.warn(f"MDE noise model failed on {X.shape[0]} points ({info['heteroscedastic_error']}); "
+                          "using the homoscedastic GP for this fit", RuntimeWarning, stacklevel=3)
+            info["selected_iteration"] = 0
+            return homo, None, None, None
         info["selected_iteration"] = best[4]
         return best[0], best[1], best[2], (X, best[5])
 

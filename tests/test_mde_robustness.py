@@ -10,7 +10,7 @@ import torch
 from linear_operator.utils.errors import NotPSDError
 
 import mde.gp
-from mde import HeteroscedasticGPMDE, MDEConfig
+from mde import GroupedMDE, HeteroscedasticGPMDE, MDEConfig
 from mde.gp import safe_cholesky
 
 T1 = {"num_threads": 1, "max_iters": 2}  # see tests/test_mde_model.py
@@ -147,6 +147,29 @@ def test_factorisation_failure_without_previous_fit_keeps_prior(monkeypatch):
     assert torch.equal(m.predict(X)[1], torch.ones(30, dtype=torch.float64))
 
 
+@pytest.mark.filterwarnings(_IGNORE_BOTORCH)
+def test_noise_model_failure_falls_back_to_the_homoscedastic_gp(monkeypatch):
+    """Seen in the quick experiment: 27 pours, most labels near 0 and a few of 0.4-0.7, made the
+    log-noise GP singular. The fit must not be lost: the homoscedastic GP is used instead."""
+    import mde.model
+
+    real = mde.model.fit_gp
+
+    def noise_fit_fails(model, **kw):
+        if not isinstance(model, mde.gp.MDEGP):  # the log-noise GP is a plain SingleTaskGP
+            raise NotPSDError("forced failure of the noise model")
+        return real(model, **kw)
+
+    monkeypatch.setattr(mde.model, "fit_gp", noise_fit_fails)
+    X, y = _data()
+    with pytest.warns(RuntimeWarning, match="using the homoscedastic GP"):
+        m = HeteroscedasticGPMDE(**T1).fit(X, y)
+    assert m.is_fitted and m.noise_model is None and "noise model" in m.fit_info["heteroscedastic_error"]
+    monkeypatch.setattr(mde.model, "fit_gp", real)
+    homo = HeteroscedasticGPMDE(**T1, heteroscedastic=False).fit(X, y)
+    assert torch.equal(m.predict(X)[0], homo.predict(X)[0])
+
+
 @pytest.mark.parametrize(
     "field, value, match",
     [
@@ -188,9 +211,10 @@ def test_yaml_lists_exactly_the_dataclass_fields_with_its_defaults():
 
     path = ROOT / "configs" / "mde" / "default.yaml"
     raw = yaml.safe_load(path.read_text())
-    assert raw.pop("_target_") == "mde.HeteroscedasticGPMDE"
+    assert raw.pop("_target_") == "mde.GroupedMDE"
     assert set(raw) == {f.name for f in fields(MDEConfig)}
-    assert MDEConfig.from_yaml(path) == MDEConfig()
+    # the library's defaults, except that the task groups by the action's skill (one GP per skill)
+    assert MDEConfig.from_yaml(path) == MDEConfig(group_column=5)
 
 
 def test_hydra_instantiate():
@@ -201,4 +225,6 @@ def test_hydra_instantiate():
     cfg = OmegaConf.load(ROOT / "configs" / "mde" / "default.yaml")
     cfg.heteroscedastic = False
     m = instantiate(cfg)
-    assert isinstance(m, HeteroscedasticGPMDE) and m.config.heteroscedastic is False
+    assert isinstance(m, GroupedMDE) and m.config.heteroscedastic is False and m.config.group_column == 5
+    cfg.update({"_target_": "mde.HeteroscedasticGPMDE", "group_column": None})
+    assert isinstance(instantiate(cfg), HeteroscedasticGPMDE)
