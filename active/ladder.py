@@ -65,17 +65,26 @@ def reproducibility(world, executor, thetas: Sequence[float], hold: float, n: in
             "max_std": max(max(r["slots_std"], r["approaches_std"]) for r in rows)}
 
 
-def plan_all(planner, problems, exp, seed: int, purpose: str, mde_beta: float | None = None) -> list:
-    """One plan per problem (None where none is found), seeded per (seed, purpose, index)."""
+def plan_all(pool, mde, problems, exp, seed: int, purpose: str, mde_beta: float | None = None) -> list:
+    """One plan per problem (None where none is found), seeded per (seed, purpose, index), on the
+    :class:`planner.PlanPool` (``planner.workers`` processes; same plans as in-process)."""
+    from planner.pool import PlanRequest
+
     from .loop import derive_seed
 
+    beta = exp.beta_test if mde_beta is None else mde_beta
+    reqs = [PlanRequest("plan", prob.start, prob.goal, beta=beta, d_max=exp.d_max,
+                        seed=derive_seed(seed, "ladder", purpose, k)) for k, prob in enumerate(problems)]
+    try:
+        return [res.trajectory if res.found else None for res in pool.run(reqs, mde)]
+    except Exception as err:  # noqa: BLE001 - find which plans fail; a failed plan is recorded, the rung goes on
+        log.warning("ladder %s: a plan failed (%s); planning one by one", purpose, err)
     plans = []
-    for k, prob in enumerate(problems):
+    for k, req in enumerate(reqs):
         try:
-            res = planner.plan(prob.start, prob.goal, beta=exp.beta_test if mde_beta is None else mde_beta,
-                               d_max=exp.d_max, seed=derive_seed(seed, "ladder", purpose, k))
+            res = pool.run([req], mde)[0]
             plans.append(res.trajectory if res.found else None)
-        except Exception as err:  # a failed plan is recorded, the rung goes on
+        except Exception as err:  # noqa: BLE001
             log.warning("ladder %s: planning problem %d failed: %s", purpose, k, err)
             plans.append(None)
     return plans
@@ -97,9 +106,8 @@ def execute_plans(executor, world_name: str, problems, plans) -> list:
     return out
 
 
-def model_only(world, world_name: str, dyn, planner_cfg, exp, executor, n: int, seed: int) -> dict:
+def model_only(world, world_name: str, pool, exp, executor, n: int, seed: int) -> dict:
     """Plans from the model alone (no MDE) for n problems, executed in ``world_name``."""
-    from planner import Planner
     from sim.execute import CATEGORIES
     from sim.problems import sample_problems
 
@@ -107,7 +115,7 @@ def model_only(world, world_name: str, dyn, planner_cfg, exp, executor, n: int, 
 
     problems = sample_problems(world, n, derive_seed(seed, "ladder-problems", world_name), world=world_name)
     t0 = time.perf_counter()
-    plans = plan_all(Planner(dyn, None, planner_cfg), problems, exp, seed, f"model-only-{world_name}")
+    plans = plan_all(pool, None, problems, exp, seed, f"model-only-{world_name}")
     t_plan = time.perf_counter() - t0
     res = execute_plans(executor, world_name, problems, plans)
     done = [r for r in res if r is not None]
@@ -119,19 +127,19 @@ def model_only(world, world_name: str, dyn, planner_cfg, exp, executor, n: int, 
             "plan_seconds": t_plan}
 
 
-def ceiling_dataset(world, dyn, planner_cfg, exp, executor, n_train: int, seed: int, batch: int = 32) -> dict:
+def ceiling_dataset(world, pool, exp, executor, n_train: int, seed: int, batch: int = 32) -> dict:
     """n_train target-world trajectories (half random plans of the model alone, half random action
     sequences), as arrays: s, a, s_next (transitions of stable trajectories), trajectory (each
     transition's trajectory index) and category (one per trajectory)."""
-    from planner import ActionSampler, Planner
+    from planner import ActionSampler
     from sim.problems import sample_problems
 
     from .loop import _stack_steps, derive_seed
 
     n_plans = n_train // 2
     train_probs = sample_problems(world, n_train, derive_seed(seed, "ladder-ceiling-train"), world="target")
-    plans = plan_all(Planner(dyn, None, planner_cfg), train_probs[:n_plans], exp, seed, "ceiling-train")
-    sampler = ActionSampler(planner_cfg)
+    plans = plan_all(pool, None, train_probs[:n_plans], exp, seed, "ceiling-train")
+    sampler = ActionSampler(pool.config)
     rng = np.random.default_rng(derive_seed(seed, "ladder-ceiling-actions"))
     acts = [p.actions if p is not None else sampler.sample(exp.random_actions_length, rng) for p in plans]
     acts += [sampler.sample(exp.random_actions_length, rng) for _ in train_probs[n_plans:]]
@@ -147,7 +155,7 @@ def ceiling_dataset(world, dyn, planner_cfg, exp, executor, n_train: int, seed: 
             "train_plans_found": np.array(sum(p is not None for p in plans))}
 
 
-def ceiling(world, dyn, planner_cfg, exp, executor, make_mde, n_train: int, n: int, seed: int,
+def ceiling(world, dyn, pool, exp, executor, make_mde, n_train: int, n: int, seed: int,
             data_path: Path | None = None, reuse: bool = False) -> dict:
     """Fit the MDE on n_train target-world trajectories (:func:`ceiling_dataset`), then plan n fresh
     test problems with the paper's precondition.
@@ -157,7 +165,7 @@ def ceiling(world, dyn, planner_cfg, exp, executor, make_mde, n_train: int, n: i
     simulated again (labels are always recomputed with ``dyn``)."""
     import torch
 
-    from planner import Planner, features
+    from planner import features
     from sim.problems import sample_problems
     from sim.skills import MOVE, POUR
 
@@ -170,7 +178,7 @@ def ceiling(world, dyn, planner_cfg, exp, executor, make_mde, n_train: int, n: i
             data = {k: f[k] for k in f.files}
         n_train = len(data["category"])
     else:
-        data = ceiling_dataset(world, dyn, planner_cfg, exp, executor, n_train, seed)
+        data = ceiling_dataset(world, pool, exp, executor, n_train, seed)
     s, a = data["s"], data["a"]
     y = label_transitions(dyn, s, a, data["s_next"], world.distance_weights)
     if data_path is not None and not reuse:
@@ -202,7 +210,7 @@ def ceiling(world, dyn, planner_cfg, exp, executor, make_mde, n_train: int, n: i
                 per_skill[name].update(_admission(cv[0].numpy()[m], cv[1].numpy()[m], y[m], exp, "heldout"))
     test = sample_problems(world, n, derive_seed(seed, "ladder-ceiling-test"), world="target")
     t0 = time.perf_counter()
-    tplans = plan_all(Planner(dyn, mde, planner_cfg), test, exp, seed, "ceiling-test")
+    tplans = plan_all(pool, mde, test, exp, seed, "ceiling-test")
     t_plan = time.perf_counter() - t0
     res = execute_plans(executor, "target", test, tplans)
     done = [r for r in res if r is not None]
@@ -235,7 +243,9 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
     import safeio
 
     from .experiment import ExperimentConfig
-    from .loop import build_planner_config
+    from planner.pool import PlanPool
+
+    from .loop import build_planner_config, planner_workers
 
     unknown = sorted(set(rungs) - set(RUNGS))
     if unknown:
@@ -245,6 +255,7 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
     exp = ExperimentConfig.from_mapping(cfg["experiment"])
     world = WorldConfig.from_mapping(cfg["world"])
     planner_cfg = build_planner_config(world, cfg["planner"], exp)
+    workers = planner_workers(cfg["planner"])
     out.mkdir(parents=True, exist_ok=True)
     path = out / "ladder.json"
     result: dict[str, Any] = {"config": {"world": cfg["world"], "dynamics": cfg["dynamics"],
@@ -267,17 +278,18 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
         if exp.known_obstacles:
             dyn = dynamics.ContactAwareDynamics(dyn, world)
         result.setdefault("rung_seconds", {})["dynamics"] = time.perf_counter() - t0
-        for name in ("source_model_only", "target_model_only"):
-            if name in rungs:
+        mde_cfg = dict(cfg["mde"])
+        make_mde = lambda: instantiate(mde_cfg, _convert_="all")  # noqa: E731
+        with PlanPool(dyn, planner_cfg, workers, preload=[type(make_mde()).__module__]) as pool:
+            for name in ("source_model_only", "target_model_only"):
+                if name in rungs:
+                    t0 = time.perf_counter()
+                    save(name, model_only(world, name.split("_")[0], pool, exp, executor, n, seed), t0)
+            if "ceiling" in rungs:
                 t0 = time.perf_counter()
-                save(name, model_only(world, name.split("_")[0], dyn, planner_cfg, exp, executor, n, seed), t0)
-        if "ceiling" in rungs:
-            t0 = time.perf_counter()
-            mde_cfg = dict(cfg["mde"])
-            save("ceiling", ceiling(world, dyn, planner_cfg, exp, executor,
-                                    lambda: instantiate(mde_cfg, _convert_="all"), n_train, n, seed,
-                                    data_path=ceiling_data or out / "ceiling_train.npz",
-                                    reuse=ceiling_data is not None), t0)
+                save("ceiling", ceiling(world, dyn, pool, exp, executor, make_mde, n_train, n, seed,
+                                        data_path=ceiling_data or out / "ceiling_train.npz",
+                                        reuse=ceiling_data is not None), t0)
     executor.close()
     result["seconds"] = time.perf_counter() - t_start
     safeio.write_json(path, result, indent=1, default=float)
