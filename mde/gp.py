@@ -272,7 +272,39 @@ class MDEGP(SingleTaskGP):
             )
 
 
-class PriorMDEModel(Model):
+class DiagonalModel(Model):
+    """A one-output BoTorch model whose posterior has independent rows (diagonal covariance).
+
+    Subclasses give per-row mean and variance (:meth:`mean_var`); this class shapes them into a
+    posterior over ``batch x q``.
+    """
+
+    @property
+    def num_outputs(self) -> int:
+        return 1
+
+    @property
+    def batch_shape(self) -> torch.Size:
+        return torch.Size()
+
+    def mean_var(self, X: Tensor, observation_noise: bool | Tensor) -> tuple[Tensor, Tensor]:  # pragma: no cover
+        """Mean and variance at each row of ``X`` (... x d) -> (...), (...)."""
+        raise NotImplementedError
+
+    def posterior(  # type: ignore[override]
+        self,
+        X: Tensor,
+        output_indices: list[int] | None = None,
+        observation_noise: bool | Tensor = False,
+        posterior_transform: Any = None,
+        **kwargs: Any,
+    ) -> GPyTorchPosterior:
+        mean, var = self.mean_var(X, observation_noise)
+        post = GPyTorchPosterior(MultivariateNormal(mean, DiagLinearOperator(var)))
+        return post if posterior_transform is None else posterior_transform(post)
+
+
+class PriorMDEModel(DiagonalModel):
     """BoTorch model of the MDE before any data: mean 0, std ``prior_std`` (label units), iid.
 
     Lets acquisition functions run before the first fit. There is no noise model yet, so
@@ -284,28 +316,11 @@ class PriorMDEModel(Model):
         self.prior_std = float(prior_std)
         self._dtype = dtype
 
-    @property
-    def num_outputs(self) -> int:
-        return 1
-
-    @property
-    def batch_shape(self) -> torch.Size:
-        return torch.Size()
-
-    def posterior(  # type: ignore[override]
-        self,
-        X: Tensor,
-        output_indices: list[int] | None = None,
-        observation_noise: bool | Tensor = False,
-        posterior_transform: Any = None,
-        **kwargs: Any,
-    ) -> GPyTorchPosterior:
+    def mean_var(self, X: Tensor, observation_noise: bool | Tensor) -> tuple[Tensor, Tensor]:
         shape = X.shape[:-1]
         dtype = X.dtype if X.is_floating_point() else self._dtype
         mean = torch.zeros(shape, dtype=dtype, device=X.device)
-        var = torch.full(shape, self.prior_std**2, dtype=dtype, device=X.device)
-        post = GPyTorchPosterior(MultivariateNormal(mean, DiagLinearOperator(var)))
-        return post if posterior_transform is None else posterior_transform(post)
+        return mean, torch.full(shape, self.prior_std**2, dtype=dtype, device=X.device)
 
 
 def data_bounds(X: Tensor) -> Tensor:

@@ -17,16 +17,13 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import torch
-from botorch.models.model import Model
 from botorch.posteriors.gpytorch import GPyTorchPosterior
-from gpytorch.distributions import MultivariateNormal
-from linear_operator.operators import DiagLinearOperator
 from torch import Tensor
 
 import safeio
 
 from .config import MDEConfig
-from .gp import DTYPE
+from .gp import DTYPE, DiagonalModel
 from .model import HeteroscedasticGPMDE, _as_labels, _as_matrix
 
 _FORMAT = "mde.GroupedMDE"
@@ -87,7 +84,7 @@ class GroupedMDE:
         return {f"group {g:g}": c.fit_info for g, c in self._children.items()}
 
     @property
-    def model(self) -> Model:
+    def model(self) -> "GroupedModel":
         """BoTorch model routing each row to its group's GP (label units; see :class:`GroupedModel`)."""
         return GroupedModel(self)
 
@@ -170,7 +167,7 @@ class GroupedMDE:
         return f"GroupedMDE(group_column={self._config.group_column}, n_train per group {{{parts}}})"
 
 
-class GroupedModel(Model):
+class GroupedModel(DiagonalModel):
     """BoTorch view of a :class:`GroupedMDE`: each row's posterior is its group GP's.
 
     Rows of different groups are independent by construction; rows of one group are returned
@@ -182,23 +179,8 @@ class GroupedModel(Model):
         super().__init__()
         self._mde = mde
 
-    @property
-    def num_outputs(self) -> int:
-        return 1
-
-    @property
-    def batch_shape(self) -> torch.Size:
-        return torch.Size()
-
-    def posterior(  # type: ignore[override]
-        self,
-        X: Tensor,
-        output_indices: list[int] | None = None,
-        observation_noise: bool | Tensor = False,
-        posterior_transform: Any = None,
-        **kwargs: Any,
-    ) -> GPyTorchPosterior:
-        """``X``: batch x q x d -> posterior over batch x q (one output)."""
+    def mean_var(self, X: Tensor, observation_noise: bool | Tensor) -> tuple[Tensor, Tensor]:
+        """``X``: batch x q x d -> mean and variance over batch x q."""
         flat = X.reshape(-1, X.shape[-1])
         g = self._mde.group_of(flat).to(flat.device)
         mean = torch.empty(flat.shape[0], dtype=X.dtype, device=X.device)
@@ -209,6 +191,4 @@ class GroupedModel(Model):
             post = model.posterior(flat[rows], observation_noise=observation_noise)
             mean[rows] = post.mean.reshape(-1).to(X.dtype)
             var[rows] = post.variance.reshape(-1).to(X.dtype)
-        shape = X.shape[:-1]
-        post = GPyTorchPosterior(MultivariateNormal(mean.reshape(shape), DiagLinearOperator(var.reshape(shape))))
-        return post if posterior_transform is None else posterior_transform(post)
+        return mean.reshape(X.shape[:-1]), var.reshape(X.shape[:-1])
