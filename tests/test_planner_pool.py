@@ -16,6 +16,7 @@ import torch
 
 from planner import CandidateSet, Planner, PlannerConfig, PlanResult, sample_problems
 from planner.pool import AUTO_MAX_WORKERS, PlanPool, PlanRequest, available_cpus, dumps, resolve_workers
+from planner.bench_pool import fingerprint
 from planner.standins import StandInMLPDynamics, fitted_standin_mde, synthetic_deviation_dataset
 
 CFG = PlannerConfig(propagation_budget=1500, time_budget=60.0, n_candidates=3)
@@ -59,17 +60,6 @@ def requests() -> list[PlanRequest]:
     return reqs
 
 
-def fingerprint(r):
-    """Everything deterministic about a result, as bytes (time_s is wall clock)."""
-    if isinstance(r, CandidateSet):
-        return ("set", [fingerprint(t) for t in r.candidates], [fingerprint(x) for x in r.runs])
-    if isinstance(r, PlanResult):
-        st = r.stats
-        return ("plan", fingerprint(r.trajectory), st.found, st.propagations, st.mde_evaluations, st.expansions,
-                st.rejected, st.tree_size, st.termination, st.seed, st.best_goal_distance)
-    if r is None:
-        return None
-    return tuple(getattr(r, k).tobytes() for k in ("actions", "states", "mu", "sigma"))
 
 
 def in_process(dynamics, mde, reqs):
