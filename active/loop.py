@@ -32,7 +32,8 @@ from planner.pool import PlanPool, PlanRequest, resolve_workers
 from sim.execute import PouringExecutor
 from sim.problems import Problem, sample_problems
 from sim.skills import pour
-from sim.world import WorldConfig, state_distance
+from sim.world import WorldConfig
+from task import state_distance
 
 from .experiment import ExperimentConfig
 from .io import load_torch, save_torch, write_csv

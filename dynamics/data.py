@@ -32,8 +32,9 @@ from .config import DATA_FORMAT_VERSION, TRAIN_COMMAND, DataConfig, DynamicsErro
 log = logging.getLogger(__name__)
 
 DATASET_FORMAT = "active-mde/dynamics-dataset"
-STATE_DIM, ACTION_DIM = 5, 3
-MOVE, POUR = 0, 1
+from task import ACTION_DIM, STATE_DIM  # noqa: E402
+from task import SKILL_MOVE as MOVE  # noqa: E402
+from task import SKILL_POUR as POUR  # noqa: E402
 #: arrays of a dataset: name -> (trailing shape, dtype)
 FIELDS: dict[str, tuple[tuple[int, ...], Any]] = {
     "s": ((STATE_DIM,), np.float32),

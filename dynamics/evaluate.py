@@ -110,7 +110,7 @@ def evaluate(cfg: DynamicsConfig, cache_root: str | Path | None = None, world_cf
             "groups": tables, "target_scatter": scatter, "config": cfg.to_dict(),
             "definitions": {
                 "mae_*": "mean |f_hat(s,a) - s'| per state component (m, m, rad, fraction, fraction)",
-                "d": "sim.world.state_distance(f_hat(s,a), s') with the world's distance weights",
+                "d": "task.state_distance(f_hat(s,a), s') with the world's distance weights",
                 "frac_d_gt_0.07": "share of transitions with d > 0.07 (the paper's d_max)",
                 "near": f"plant within {cfg.eval.near_radius} m of the cup outline along the action's executed "
                         "path or, for a pour, of the water's fall region (between the vertical below the pouring "

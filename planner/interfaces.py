@@ -7,7 +7,7 @@ wherever the dynamics model lives. Layouts are fixed by the project lead:
 - state ``s`` (5): ``(x, y, theta, v_ctrl, v_tgt)`` -- pose of the controlled cup (floor centre,
   metres; theta in radians, 0 = upright, positive = tilted towards the target cup) and the
   fractions of all water inside the controlled cup and inside the target cup;
-  ``spill = 1 - v_ctrl - v_tgt``.
+  ``spill = 1 - v_ctrl - v_tgt``. The layout and the goal test live in the leaf package ``task``.
 - action ``a`` (3): ``(skill_id, p1, p2)``; skill 0 = ``move(x, y)``, skill 1 = ``pour(theta, hold)``.
 - MDE features ``X = concat(s, a)`` (8).
 """
@@ -20,21 +20,26 @@ import numpy as np
 import torch
 from torch import Tensor
 
-# -- layout constants ---------------------------------------------------------------------------
-STATE_DIM = 5
-ACTION_DIM = 3
-FEATURE_DIM = STATE_DIM + ACTION_DIM
-
-STATE_NAMES = ("x", "y", "theta", "v_ctrl", "v_tgt")
-X, Y, THETA, V_CTRL, V_TGT = range(STATE_DIM)
-
-SKILL_MOVE = 0
-SKILL_POUR = 1
-SKILL_NAMES = {SKILL_MOVE: "move", SKILL_POUR: "pour"}
-#: Names of (p1, p2) per skill, used in error messages and pretty printing.
-SKILL_PARAM_NAMES = {SKILL_MOVE: ("x", "y"), SKILL_POUR: ("theta", "hold")}
-
-DEFAULT_SPILL_LIMIT = 0.02
+# -- layout constants and the task's tests: one home, the leaf package ``task`` -------------------
+from task import (  # noqa: E402,F401 - re-exported: the planner's public names
+    ACTION_DIM,
+    DEFAULT_SPILL_LIMIT,
+    FEATURE_DIM,
+    SKILL_MOVE,
+    SKILL_NAMES,
+    SKILL_PARAM_NAMES,
+    SKILL_POUR,
+    STATE_DIM,
+    STATE_NAMES,
+    THETA,
+    V_CTRL,
+    V_TGT,
+    X,
+    Y,
+    goal_distance,
+    goal_reached,
+    spill,
+)
 
 
 @runtime_checkable
@@ -89,43 +94,6 @@ def _check_last_dim(s_shape: tuple[int, ...], a_shape: tuple[int, ...]) -> None:
 def split_features(X: ArrayT) -> tuple[ArrayT, ArrayT]:
     """Inverse of :func:`features`: ``X[..., :5], X[..., 5:]``."""
     return X[..., :STATE_DIM], X[..., STATE_DIM:]
-
-
-def spill(states: ArrayT) -> ArrayT:
-    """Fraction of water that is in neither cup: ``1 - v_ctrl - v_tgt``."""
-    states = _as_array(states)
-    return 1.0 - states[..., V_CTRL] - states[..., V_TGT]
-
-
-def goal_reached(state: ArrayT, g: float, tol: float, spill_limit: float = DEFAULT_SPILL_LIMIT):
-    """Goal test of the design brief: ``|v_tgt - g| <= tol`` and ``spill <= spill_limit``.
-
-    Vectorised over leading dimensions; returns a bool for a single state.
-    """
-    state = _as_array(state)
-    ok = (abs(state[..., V_TGT] - g) <= tol) & (spill(state) <= spill_limit)
-    if isinstance(ok, Tensor):
-        return bool(ok) if ok.dim() == 0 else ok
-    ok = np.asarray(ok)
-    return bool(ok) if ok.ndim == 0 else ok
-
-
-def goal_distance(state: ArrayT, g: float, tol: float, spill_limit: float = DEFAULT_SPILL_LIMIT):
-    """How far a state is from satisfying :func:`goal_reached` (0 exactly when it does).
-
-    Sum of the two constraint violations; used as OMPL's goal distance so that the planner's
-    closest approximate solution is meaningful.
-    """
-    state = _as_array(state)
-    a = abs(state[..., V_TGT] - g) - tol
-    b = spill(state) - spill_limit
-    if isinstance(state, Tensor):
-        return a.clamp_min(0.0) + b.clamp_min(0.0)
-    return np.maximum(a, 0.0) + np.maximum(b, 0.0)
-
-
-def _as_array(x):
-    return x if isinstance(x, Tensor) else np.asarray(x, dtype=float)
 
 
 def skill_ids(actions: ArrayT) -> ArrayT:

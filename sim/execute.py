@@ -15,10 +15,12 @@ from typing import Sequence
 
 import numpy as np
 
+from task import goal_reached, spill
+
 from .mpm import MPMSolver
 from .render import snapshot
 from .skills import Obstacles, Schedule, to_world, cup_boundary, plan_schedule, validate_actions
-from .world import CTRL, WorldConfig, check_world, goal_reached, spill
+from .world import CTRL, WorldConfig, check_world
 
 log = logging.getLogger(__name__)
 

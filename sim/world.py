@@ -17,13 +17,14 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
+from task import STATE_DIM, goal_reached, spill, state_distance  # noqa: F401 - the task's one home, re-exported
+
 from .config import ConfigError, SimConfig
 from .scene import Body, EnvSpec, Shape, WaterBlock, open_box
 
 WORLDS = ("source", "target")
 DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "world" / "default.yaml"
 CTRL, TARGET, PLANT = 0, 1, 2  # body indices in every environment
-STATE_DIM = 5
 
 
 @dataclass
@@ -142,23 +143,3 @@ def check_world(world: str) -> None:
     if world not in WORLDS:
         raise ValueError(f"world = {world!r}: allowed one of {WORLDS}")
 
-
-# ---------------------------------------------------------------------------------- state
-def spill(states: np.ndarray) -> np.ndarray:
-    """Fraction of the water in neither cup."""
-    s = np.asarray(states)
-    return 1.0 - s[..., 3] - s[..., 4]
-
-
-def state_distance(s_i: np.ndarray, s_j: np.ndarray, weights: Mapping[str, float] | None = None) -> np.ndarray:
-    """d(s_i, s_j) = w_pose ||(x, y, theta)_i - (x, y, theta)_j|| + w_volume (|dv_ctrl| + |dv_tgt|)."""
-    w = {"pose": 1.0, "volume": 1.0, **(weights or {})}
-    a, b = np.asarray(s_i, float), np.asarray(s_j, float)
-    pose = np.linalg.norm(a[..., :3] - b[..., :3], axis=-1)
-    vol = np.abs(a[..., 3] - b[..., 3]) + np.abs(a[..., 4] - b[..., 4])
-    return w["pose"] * pose + w["volume"] * vol
-
-
-def goal_reached(state: np.ndarray, goal: float, tolerance: float, max_spill: float = 0.02) -> np.ndarray:
-    s = np.asarray(state)
-    return (np.abs(s[..., 4] - goal) <= tolerance) & (spill(s) <= max_spill)

@@ -93,7 +93,7 @@ def test_features_and_goal_helpers_numpy_and_torch():
     np.testing.assert_array_equal(goal_reached(s, 0.5, 0.05), [True, False])  # 2nd: spill 0.1
     assert goal_reached(s[0], 0.5, 0.05) is True
     assert goal_reached(s[0], 0.5, 0.03) is False
-    assert goal_reached(s[1], 0.5, 0.05, spill_limit=0.2) is True
+    assert goal_reached(s[1], 0.5, 0.05, max_spill=0.2) is True
     assert goal_reached(torch.tensor(s[0]), 0.5, 0.05) is True
     d = goal_distance(s, 0.5, 0.05)
     assert d[0] == 0.0 and d[1] == pytest.approx(0.08)
