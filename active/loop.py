@@ -33,7 +33,7 @@ from sim.execute import PouringExecutor
 from sim.problems import Problem, sample_problems
 from sim.skills import pour
 from sim.world import WorldConfig
-from task import state_distance
+from task import FEATURE_NAMES, state_distance
 
 from .experiment import ExperimentConfig
 from .io import load_torch, save_torch, write_csv
@@ -232,7 +232,7 @@ class MethodRun:
         self.state["mde_path"] = mde_name
         self.state["completed"] = iteration
         save_torch(self.dir / "dataset.pt", {"X": self.state["X"], "y": self.state["y"],
-                                             "feature_names": ["x", "y", "theta", "v_ctrl", "v_tgt", "skill", "p1", "p2"]})
+                                             "feature_names": list(FEATURE_NAMES)})
         fields = RESULT_FIELDS + (["test_success_refined"] if self.ctx.exp.refine_steps else [])
         write_csv(self.dir / "results.csv", self.state["results"], fields)
         write_csv(self.dir / "categories.csv", self.state["categories"], CATEGORY_FIELDS)

@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 import safeio
+from task import STATE_NAMES
 
 from .config import (TRAIN_COMMAND, DataConfig, DynamicsConfig, DynamicsError, ModelConfig, TrainConfig,
                      data_hash, model_hash)
@@ -37,7 +38,6 @@ from .model import SKILLS, LearnedDynamics
 
 log = logging.getLogger(__name__)
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs" / "dynamics"
-STATE_NAMES = ("x", "y", "theta", "v_ctrl", "v_tgt")
 
 Generator = Callable[..., Transitions]
 

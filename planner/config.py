@@ -12,6 +12,8 @@ import math
 from dataclasses import dataclass, field, fields
 from typing import Any, Mapping
 
+from task import STATE_NAMES
+
 Range = tuple[float, float]
 
 
@@ -113,7 +115,7 @@ class PlannerConfig:
         hi = tuple(float(v) for v in self.state_high)
         if len(lo) != 5 or len(hi) != 5:
             raise ValueError("state_low and state_high must have 5 entries (x, y, theta, v_ctrl, v_tgt)")
-        names = ("x", "y", "theta", "v_ctrl", "v_tgt")
+        names = STATE_NAMES
         for n, a, b in zip(names, lo, hi):
             _range(f"state bounds for {n}", (a, b))
         set_("state_low", lo)

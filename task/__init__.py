@@ -20,6 +20,9 @@ STATE_DIM = 5
 ACTION_DIM = 3
 FEATURE_DIM = STATE_DIM + ACTION_DIM
 STATE_NAMES = ("x", "y", "theta", "v_ctrl", "v_tgt")
+ACTION_NAMES = ("skill", "p1", "p2")
+#: names of the MDE's input features ``concat(s, a)``
+FEATURE_NAMES = STATE_NAMES + ACTION_NAMES
 X, Y, THETA, V_CTRL, V_TGT = range(STATE_DIM)
 
 SKILL_MOVE = 0
