@@ -66,7 +66,7 @@ from .diff_mpm import DiffMPM
 from .diff_schedule import (PARAMS, chain_to_params, cup_trajectory, horizon_ticks, production_ticks,
                             substeps_per_tick)
 from .scene import Body, EnvSpec, WaterBlock, sample_water
-from .skills import Obstacles, cup_boundary, plan_schedule, pour, to_world
+from .skills import Obstacles, cup_boundary, plan_schedule, pour, start_overlap
 from .world import WorldConfig
 
 log = logging.getLogger(__name__)
@@ -262,10 +262,10 @@ class DifferentiablePour:
             raise ConfigError(f"v_ctrl: expected {self.B} fill fractions in (0, 1], got {v_ctrl}")
         obst = self._obstacles()
         for b in range(self.B):
-            d, _ = obst.sdf(to_world(self._boundary, np.array([[p[b, 0], p[b, 1], 0.0]]))[0])
-            if d.min() < 0:
-                raise ConfigError(f"params[{b}] (x, y) = ({p[b, 0]:g}, {p[b, 1]:g}): the cup overlaps the target "
-                                  f"cup or a tank wall there; choose a start pose clear of every obstacle")
+            name = start_overlap(obst, self._boundary, np.array([p[b, 0], p[b, 1], 0.0]))
+            if name is not None:
+                raise ConfigError(f"params[{b}] (x, y) = ({p[b, 0]:g}, {p[b, 1]:g}): the cup overlaps the {name} "
+                                  f"there; choose a start pose clear of every obstacle")
         return p, v
 
     def _obstacles(self) -> Obstacles:

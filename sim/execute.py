@@ -19,7 +19,7 @@ from task import goal_reached, spill
 
 from .mpm import MPMSolver
 from .render import snapshot
-from .skills import Obstacles, Schedule, to_world, cup_boundary, plan_schedule, validate_actions
+from .skills import Obstacles, Schedule, cup_boundary, plan_schedule, start_overlap, validate_actions
 from .world import CTRL, WorldConfig, check_world
 
 log = logging.getLogger(__name__)
@@ -123,10 +123,8 @@ class PouringExecutor:
         scheds: list[Schedule] = []
         for b in range(B):
             obst = Obstacles(specs[b].bodies[1:], interior_lo, interior_hi)
-            d, idx = obst.sdf(to_world(self._boundary, starts[b][None])[0])
-            if d.min() < 0:
-                who = int(idx[np.argmin(d)])
-                name = "tank wall" if who < 0 else f"{obst.bodies[who].name} body"
+            name = start_overlap(obst, self._boundary, starts[b])
+            if name is not None:
                 raise ValueError(f"starts[{b}] = {starts[b].tolist()}: the cup overlaps the {name} there; "
                                  f"choose a start pose clear of every obstacle")
             scheds.append(plan_schedule(cfg, starts[b], acts[b], obst, self._boundary))

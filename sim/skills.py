@@ -166,6 +166,17 @@ class Schedule:
     stuck_on: str | None = None  # name of the obstacle body ("plant", "target") or "tank"
 
 
+def start_overlap(obstacles: "Obstacles", boundary: np.ndarray, pose: np.ndarray) -> str | None:
+    """What the cup at ``pose`` overlaps ("tank wall" or "<name> body"), or None when it is clear.
+
+    The one start check of both the executor and the differentiable pour (each words its error)."""
+    d, idx = obstacles.sdf(to_world(boundary, np.asarray(pose, float)[None])[0])
+    if d.min() >= 0:
+        return None
+    who = int(idx[np.argmin(d)])
+    return "tank wall" if who < 0 else f"{obstacles.bodies[who].name} body"
+
+
 def plan_schedule(cfg: WorldConfig, start: np.ndarray, actions: np.ndarray, obstacles: Obstacles,
                   boundary: np.ndarray) -> Schedule:
     """Pose-versus-tick schedule of a whole action sequence, stopping at the first contact."""

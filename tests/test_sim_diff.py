@@ -154,7 +154,7 @@ def test_memory_estimate_is_o_of_t_over_k_plus_k():
 def test_cup_overlapping_the_target_is_rejected(dp):
     p = P.copy()
     p[0, :2] = (0.20, 0.07)  # the cup's left wall would stand in the target's left wall
-    with pytest.raises(ConfigError, match="overlaps the target cup"):
+    with pytest.raises(ConfigError, match="overlaps the target body"):
         dp.forward(p, horizon=HORIZON)
 
 
