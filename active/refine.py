@@ -6,7 +6,7 @@ larger than the goal tolerance; the simulator of the source world can be differe
 last pour (theta, hold) is refined from the plan's predicted state before it (cup position, water
 left in the cup) towards the amount the goal still needs, then the plan is executed as usual.
 
-    python -m active.refine_check RUN_DIR [--method active_balanced] [--steps 5]   (see refine_check.py)
+    python -m benchmarks.refine_check RUN_DIR [--method active_balanced] [--steps 5]   (see benchmarks/refine_check.py)
 """
 
 from __future__ import annotations

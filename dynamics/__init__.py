@@ -9,7 +9,7 @@ data, used by the planner in the target world, where it is wrong near the plant.
     s1 = model.predict_one(s, a)                           # numpy fast path for one transition
 
 Commands: ``python -m dynamics.train`` (Hydra, ``configs/dynamics``), ``python -m dynamics.evaluate
---out DIR`` and ``python -m dynamics.bench``. Depends on ``sim`` (data generation) only.
+--out DIR`` and ``python -m benchmarks.dynamics``. Depends on ``sim`` (data generation) only.
 """
 
 from .config import (DataConfig, DynamicsConfig, DynamicsError, EvalConfig, ModelConfig, TrainConfig, data_hash,

@@ -2,8 +2,8 @@
 
 Public API: :class:`Planner` (``plan`` / ``plan_candidates``), :class:`PlannerConfig`,
 :class:`ActionSampler` and :func:`rollout` (shared with the Random Actions baseline), the result
-dataclasses and the interface helpers in :mod:`planner.interfaces`. Stand-in models live in
-:mod:`planner.standins`; ``python -m planner.bench`` measures planning speed.
+dataclasses and the interface helpers in :mod:`planner.interfaces`. Stand-in models for tests live in
+``tests/doubles/standins.py``; ``python -m benchmarks.planner`` measures planning speed.
 """
 
 from .config import PlannerConfig, ProblemDistribution

@@ -27,7 +27,7 @@ at least dx / 2 inside the box (the walls keep it there), so the soft fractions 
 unless water is near a boundary (crossing the rim, sitting on a wall top) at the final time.
 soft_spill = 1 - soft_in_ctrl - soft_in_target.
 
-Limits (measured numbers in the report of issue #8 and ``sim.bench_diff``):
+Limits (measured numbers in the report of issue #8 and ``benchmarks.sim_diff``):
 * The gradient is exact for the rollout as simulated (central differences with eps = 1e-7 agree
   to 5+ digits at a 0.6 s horizon, tests/test_sim_diff.py), but that rollout is only piecewise
   smooth: a grid node entering or leaving a collider, or the nearest collider switching, is a jump.

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from dynamics.synthetic import synthetic_generator, synthetic_transitions
+from tests.doubles.synthetic import synthetic_generator, synthetic_transitions
 
 
 @pytest.fixture
@@ -29,7 +29,8 @@ OVERRIDES = ["progress=false", "data.n_batches=1", "data.batch_size=12", "model.
 
 
 def test_train_evaluate_bench_commands(tmp_path, no_simulator, capsys):
-    from dynamics import bench, evaluate, train
+    from benchmarks import dynamics as bench
+    from dynamics import evaluate, train
 
     over = OVERRIDES + [f"cache_root={tmp_path / 'cache'}"]
     train.main(over + [f"hydra.run.dir={tmp_path / 'hydra'}"])

@@ -11,8 +11,8 @@ import dynamics.shipped as shipped
 from dynamics import train as train_mod
 from dynamics.config import DynamicsConfig
 from dynamics.data import Transitions, generate_transitions
-from dynamics.synthetic import synthetic_generator
 from dynamics.train import cache_paths, load_or_generate_dataset
+from tests.doubles.synthetic import synthetic_generator
 
 
 def _default():

@@ -9,8 +9,8 @@ import torch
 import dynamics.train as train_mod
 from dynamics import (DynamicsError, ModelConfig, TrainConfig, Transitions, cache_paths, error_table, fit,
                       load_or_generate_dataset, load_or_train)
-from dynamics.synthetic import synthetic_generator, synthetic_transitions
 from dynamics.train import split_by_trajectory
+from tests.doubles.synthetic import synthetic_generator, synthetic_transitions
 
 SMALL = ModelConfig(hidden=(48, 48))
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from mde.bench import format_table, main, run
+from benchmarks.mde import format_table, main, run
 
 
 def test_bench_runs_and_writes_json(tmp_path, capsys):

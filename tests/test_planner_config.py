@@ -12,7 +12,7 @@ import yaml
 from planner import (ActionSampler, DeviationEstimator, DynamicsModel, PlannerConfig, features, goal_distance,
                      goal_reached, sample_problems, spill)
 from planner.interfaces import describe_action, skill_ids, split_features
-from planner.standins import AnalyticPouringModel, StandInGPMDE, StandInMLPDynamics, ToyBoxMDE, ToyPointRobot
+from tests.doubles.standins import AnalyticPouringModel, StandInGPMDE, StandInMLPDynamics, ToyBoxMDE, ToyPointRobot
 
 YAML = Path(__file__).resolve().parents[1] / "configs" / "planner" / "default.yaml"
 

@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = textwrap.dedent("""
     import numpy as np
     from planner import Planner, PlannerConfig
-    from planner.standins import ToyBoxMDE, ToyPointRobot
+    from tests.doubles.standins import ToyBoxMDE, ToyPointRobot
 
     robot = ToyPointRobot()
     planner = Planner(robot, ToyBoxMDE(robot), PlannerConfig(time_budget=5.0))
@@ -58,7 +58,7 @@ def test_same_seed_same_plan_across_processes(script_run):
     import numpy as np
 
     from planner import Planner, PlannerConfig
-    from planner.standins import ToyBoxMDE, ToyPointRobot
+    from tests.doubles.standins import ToyBoxMDE, ToyPointRobot
 
     robot = ToyPointRobot()
     planner = Planner(robot, ToyBoxMDE(robot), PlannerConfig(time_budget=5.0))

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 import torch
 
+from benchmarks.planner_pool import fingerprint
 from planner import CandidateSet, Planner, PlannerConfig, PlanResult, sample_problems
 from planner.pool import AUTO_MAX_WORKERS, PlanPool, PlanRequest, available_cpus, dumps, resolve_workers
-from planner.bench_pool import fingerprint
-from planner.standins import StandInMLPDynamics, fitted_standin_mde, synthetic_deviation_dataset
+from tests.doubles.standins import StandInMLPDynamics, fitted_standin_mde, synthetic_deviation_dataset
 
 CFG = PlannerConfig(propagation_budget=1500, time_budget=60.0, n_candidates=3)
 

@@ -1,6 +1,6 @@
 """OMPL RRT planner: precondition, goal, depth limit, determinism, candidates, budgets, bad input.
 
-Uses the 2-D point robot of planner.standins (embedded in the 5-D pouring state): the MDE
+Uses the 2-D point robot of tests.doubles.standins (embedded in the 5-D pouring state): the MDE
 stand-in reports a huge deviation for any move whose path enters a wall-like box between the
 start and the pouring zone, so admissible plans must go over the wall.
 """
@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from planner import ActionSampler, Planner, PlannerConfig, goal_reached, rollout
-from planner.standins import AnalyticPouringModel, ToyBoxMDE, ToyPointRobot
+from tests.doubles.standins import AnalyticPouringModel, ToyBoxMDE, ToyPointRobot
 
 START = np.array([0.5, 0.05, 0.0, 1.0, 0.0])
 GOAL = 0.5

@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from planner import PlannerConfig, goal_reached
-from planner.standins import (AnalyticPouringModel, StandInGPMDE, StandInMLPDynamics, plant_deviation,
-                              synthetic_deviation_dataset)
+from tests.doubles.standins import (AnalyticPouringModel, StandInGPMDE, StandInMLPDynamics, plant_deviation,
+                                    synthetic_deviation_dataset)
 
 
 def _pour_from(x, y, theta, hold, v=1.0):
@@ -78,7 +78,7 @@ def test_gp_standin_fits_synthetic_deviation():
 
 
 def test_bench_quick_smoke(tmp_path, capsys):
-    from planner import bench
+    from benchmarks import planner as bench
 
     out = tmp_path / "bench.json"
     rc = bench.main(["--problems", "2", "--mde", "standin", "--mde-points", "100", "--candidates", "2",
@@ -89,6 +89,6 @@ def test_bench_quick_smoke(tmp_path, capsys):
     assert "propagations/s" in text and "median plan time" in text and "TARGET" in text
     r = json.loads(out.read_text())
     assert r["planning"]["runs"] == 2 and r["planning"]["propagations"] > 0
-    assert r["mde"]["kind"].startswith("planner.standins.StandInGPMDE")
+    assert r["mde"]["kind"].startswith("tests.doubles.standins.StandInGPMDE")
     assert set(r["targets"]) == {"propagations_per_s", "median_plan_s"}
     assert PlannerConfig.from_dict(r["config"]).n_candidates == 2

@@ -340,7 +340,7 @@ def test_dynamics_cache_finishes_after_a_kill_and_removes_orphans(tmp_path, monk
     and temporary files: the next call finishes the folders without regenerating or retraining."""
     import dynamics.train as train_mod
     from dynamics import cache_paths, load_or_train
-    from dynamics.synthetic import synthetic_generator
+    from tests.doubles.synthetic import synthetic_generator
 
     calls = []
 

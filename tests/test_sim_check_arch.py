@@ -1,8 +1,8 @@
-"""The CPU/GPU agreement check's comparison rule (the GPU run itself needs a GPU: python -m sim.check_arch)."""
+"""The CPU/GPU agreement check's comparison rule (the GPU run itself needs a GPU: python -m benchmarks.check_arch)."""
 
 import numpy as np
 
-from sim.check_arch import compare
+from benchmarks.check_arch import compare
 
 
 def _suite(arch, states, cats, unstable=None):

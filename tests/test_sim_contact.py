@@ -9,10 +9,10 @@ import torch
 
 from dynamics import ContactAwareDynamics
 from planner import Planner, PlannerConfig
-from planner.standins import AnalyticPouringModel
 from sim.contact import ContactPredictor
 from sim.skills import cup_boundary, move, plan_schedule, pour, random_actions
 from sim.world import WorldConfig
+from tests.doubles.standins import AnalyticPouringModel
 
 
 @pytest.fixture(scope="module")

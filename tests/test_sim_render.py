@@ -3,10 +3,10 @@
 import numpy as np
 from PIL import Image
 
+from benchmarks.validate import CupGeometry, cup_scene
 from sim.config import SimConfig
 from sim.mpm import MPMSolver
 from sim.render import save_gif, save_png, snapshot
-from sim.validate import CupGeometry, cup_scene
 
 
 def test_png_and_gif_show_water_and_colliders(tmp_path):

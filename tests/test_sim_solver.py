@@ -5,11 +5,11 @@ import logging
 import numpy as np
 import pytest
 
+from benchmarks.validate import CupGeometry, cup_scene
 from sim.config import ConfigError, SimConfig
 from sim.motion import follow, min_jerk
 from sim.mpm import MPMSolver
 from sim.scene import Body, EnvSpec, Shape, WaterBlock, open_box
-from sim.validate import CupGeometry, cup_scene
 
 CUP = CupGeometry()
 

@@ -1,4 +1,4 @@
-"""Physics validation cases (the same functions `python -m sim.validate` runs)."""
+"""Physics validation cases (the same functions `python -m benchmarks.validate` runs)."""
 
 import json
 from pathlib import Path
@@ -6,8 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim import validate
-from sim.validate import DAM_BREAK_TOLERANCE, dam_break_error, load_martin_moyce, run_dam_break, run_leak, run_rest
+from benchmarks import validate
+from benchmarks.validate import (DAM_BREAK_TOLERANCE, dam_break_error, load_martin_moyce, run_dam_break, run_leak,
+                                 run_rest)
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "martin_moyce_1952_surge_front.csv"
 

@@ -5,7 +5,7 @@
 Per (dx, B): the best (highest particle-substeps/s) of the rounds of each solver, every round's
 figure, the ratio ours / genesis, both front curves (from the best runs) and their mean relative
 difference over T >= 0.8 (before that both fronts sit at Z ~ 1 and agree trivially), each solver's
-mean relative error against Martin & Moyce (1952) with the max_low front (sim/validate.py's
+mean relative error against Martin & Moyce (1952) with the max_low front (benchmarks/validate.py's
 definition) and the load averages seen by every run.
 """
 
@@ -121,7 +121,7 @@ def main(argv=None) -> dict:
                      "the rounds, solvers run alternately (ours, genesis, ours, genesis) in separate processes",
         "command": args.command,
         "front_metrics": "Z = front / a against T = t sqrt(2 g / a), a = 0.1 m; p99: 99th percentile of particle x; "
-                         "max_low: furthest particle within 0.1 a of the floor (sim/validate.py); differences are "
+                         "max_low: furthest particle within 0.1 a of the floor (benchmarks/validate.py); differences are "
                          f"mean |Z_genesis - Z_ours| / Z_ours over the samples with T >= {T_MIN}",
         "loadavg_start": [float(v) for v in args.loadavg_start.split()] if args.loadavg_start else None,
         "loadavg_end": ([float(v) for v in args.loadavg_end.split()] if args.loadavg_end

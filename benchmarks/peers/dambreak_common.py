@@ -85,7 +85,7 @@ def sample_frames(dt: float, n_frames: int) -> list[int]:
 def front_metrics(pos: np.ndarray, dx: float) -> dict:
     """Surge front of one environment's particles (n, 3) in (x, y up, z), measured from the inner
     wall at x = 3 dx: p99 = 99th percentile of x over all particles; max_low = furthest particle
-    within 0.1 a of the floor (sim/validate.py's definition, the one to compare with Martin & Moyce)."""
+    within 0.1 a of the floor (benchmarks/validate.py's definition, the one to compare with Martin & Moyce)."""
     w = WALL_CELLS * dx
     x = pos[:, 0] - w
     low = pos[:, 1] < w + 0.1 * A

@@ -1,6 +1,6 @@
 """Cost of differentiating a whole pour, agreement with the production solver, and a refinement run.
 
-    python -m sim.bench_diff [--out bench_diff.json] [--skip-refine] [--refine-steps 4]
+    python -m benchmarks.sim_diff [--out bench_diff.json] [--skip-refine] [--refine-steps 4]
 
 Timing/memory: a default-resolution pour (dx = 0.01, theta = 1.8, hold = 0.5 from (0.31, 0.14),
 5.25 s = 13125 substeps) for B = 1 and B = 8 and several checkpoint intervals K (including no
@@ -43,10 +43,10 @@ def _maxrss() -> int:
 
 def measure(n_envs: int, checkpoint_every: int | None) -> dict:
     """One configuration (run in a fresh process): forward and forward+backward times, memory."""
-    from .diff import DifferentiablePour
-    from .diff_mpm import DiffMPM
-    from .diff_schedule import production_ticks
-    from .world import WorldConfig
+    from sim.diff import DifferentiablePour
+    from sim.diff_mpm import DiffMPM
+    from sim.diff_schedule import production_ticks
+    from sim.world import WorldConfig
 
     cfg = WorldConfig.load()
     params = np.tile(np.array(POUR), (n_envs, 1))
@@ -71,10 +71,10 @@ def measure(n_envs: int, checkpoint_every: int | None) -> dict:
 
 
 def agreement() -> dict:
-    from .diff import DifferentiablePour
-    from .execute import PouringExecutor
-    from .skills import pour
-    from .world import WorldConfig
+    from sim.diff import DifferentiablePour
+    from sim.execute import PouringExecutor
+    from sim.skills import pour
+    from sim.world import WorldConfig
 
     cfg = WorldConfig.load()
     P = np.array(AGREEMENT_POURS)
@@ -94,10 +94,10 @@ def agreement() -> dict:
 
 
 def refinement(steps: int) -> dict:
-    from .diff import refine_pours
-    from .execute import PouringExecutor
-    from .skills import pour
-    from .world import WorldConfig
+    from sim.diff import refine_pours
+    from sim.execute import PouringExecutor
+    from sim.skills import pour
+    from sim.world import WorldConfig
 
     cfg = WorldConfig.load()
     rng = np.random.default_rng(0)
@@ -125,12 +125,13 @@ def _atomic_json(path: str, obj: dict) -> None:
 
 
 def _subprocess(args: list[str]) -> dict:
-    out = subprocess.run([sys.executable, "-m", "sim.bench_diff", *args], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-m", "benchmarks.sim_diff", *args], capture_output=True, text=True,
+                         check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m sim.bench_diff", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.sim_diff", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="bench_diff.json")
     ap.add_argument("--skip-refine", action="store_true")

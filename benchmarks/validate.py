@@ -1,9 +1,9 @@
 """Physics validation of the water solver: dam break against Martin & Moyce (1952), water at rest,
 and container leak checks. Each case is a function (used by the tests) and a sub-command:
 
-    python -m sim.validate dam-break --out DIR     # DIR/dam_break.json + DIR/dam_break.png
-    python -m sim.validate rest --out DIR
-    python -m sim.validate leaks --out DIR
+    python -m benchmarks.validate dam-break --out DIR     # DIR/dam_break.json + DIR/dam_break.png
+    python -m benchmarks.validate rest --out DIR
+    python -m benchmarks.validate leaks --out DIR
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ import numpy as np
 
 import safeio
 
-from .config import SimConfig
-from .motion import follow, min_jerk, min_jerk_duration
-from .mpm import MPMSolver
-from .scene import Body, EnvSpec, WaterBlock, open_box
+from sim.config import SimConfig
+from sim.motion import follow, min_jerk, min_jerk_duration
+from sim.mpm import MPMSolver
+from sim.scene import Body, EnvSpec, WaterBlock, open_box
 
 G = 9.81
 MM_A = 0.05715  # m, Martin & Moyce column base width (2.25 in)
@@ -196,7 +196,7 @@ def run_leak(mode: str = "still", duration: float = 2.0, peak_speed: float = 0.3
 
 # ---------------------------------------------------------------------------------- CLI
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m sim.validate", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.validate", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="case", required=True)
     d = sub.add_parser("dam-break", help="surge front against Martin & Moyce (1952)")

@@ -1,6 +1,6 @@
 """Solver throughput against a bare reference MLS-MPM kernel, in the same process.
 
-    python -m sim.bench [--out bench_sim.json] [--envs 1 8 32] [--seconds 0.3]
+    python -m benchmarks.sim_solver [--out bench_sim.json] [--envs 1 8 32] [--seconds 0.3]
 
 Scene: a pouring-like world (a cup of water carried over a target cup on the floor, i.e. moving
 colliders, SDF queries and projection all active). Reference: Taichi's mpm88 water written out here
@@ -19,10 +19,10 @@ import taichi as ti
 
 import safeio
 
-from .backend import init_taichi
-from .config import SimConfig
-from .mpm import MPMSolver
-from .scene import Body, EnvSpec, WaterBlock, open_box
+from sim.backend import init_taichi
+from sim.config import SimConfig
+from sim.mpm import MPMSolver
+from sim.scene import Body, EnvSpec, WaterBlock, open_box
 
 
 @ti.data_oriented
@@ -156,7 +156,7 @@ def bench(envs=(1, 8, 32), seconds: float = 0.5, dx: float = 0.01, arch: str = "
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m sim.bench", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.sim_solver", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="bench_sim.json")
     ap.add_argument("--envs", type=int, nargs="+", default=[1, 8, 32])

@@ -9,7 +9,7 @@ schedule and contact with static geometry) exactly, and the water fractions stat
 absolute difference of the fractions over the batch and the share of trajectories whose category
 matches.
 
-    python -m sim.check_arch --arch gpu --reference cpu [--n 32] [--out check_arch.json]
+    python -m benchmarks.check_arch --arch gpu --reference cpu [--n 32] [--out check_arch.json]
 """
 
 from __future__ import annotations
@@ -34,12 +34,12 @@ CATEGORY_AGREEMENT_MIN = 0.85
 
 def run_suite(arch: str, n: int, seed: int = 0) -> dict:
     """Execute the fixed batch on ``arch`` and return final states, categories and timing."""
-    from .backend import init_taichi
-    from .bench_execute import OTHER_POURS, REFERENCE_POUR
-    from .execute import PouringExecutor
-    from .problems import sample_problems
-    from .skills import random_actions
-    from .world import WorldConfig
+    from benchmarks.sim_execute import OTHER_POURS, REFERENCE_POUR
+    from sim.backend import init_taichi
+    from sim.execute import PouringExecutor
+    from sim.problems import sample_problems
+    from sim.skills import random_actions
+    from sim.world import WorldConfig
 
     used = init_taichi(arch)
     cfg = WorldConfig.load()
@@ -84,7 +84,7 @@ def compare(a: dict, b: dict) -> dict:
 def _run_in_subprocess(arch: str, n: int, seed: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, f"{arch}.json")
-        cmd = [sys.executable, "-m", "sim.check_arch", "--run-one", arch, "--n", str(n), "--seed", str(seed),
+        cmd = [sys.executable, "-m", "benchmarks.check_arch", "--run-one", arch, "--n", str(n), "--seed", str(seed),
                "--out", path]
         subprocess.run(cmd, check=True)
         with open(path) as f:
@@ -92,7 +92,7 @@ def _run_in_subprocess(arch: str, n: int, seed: int) -> dict:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m sim.check_arch", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.check_arch", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--arch", default="gpu", help="arch under test (cpu | gpu | auto)")
     ap.add_argument("--reference", default="cpu", help="arch it is compared with")

@@ -1,5 +1,5 @@
 """Planning in worker processes vs in-process, on the experiment's own batches:
-``python -m planner.bench_pool [--workers 2] [--mde CHECKPOINT] [--out benchmarks/planner_pool.json] [overrides]``.
+``python -m benchmarks.planner_pool [--workers 2] [--mde CHECKPOINT] [--out benchmarks/planner_pool.json] [overrides]``.
 
 Why: planning is the largest cost of ``python -m active.run`` and every planner run is
 single-threaded; :class:`planner.pool.PlanPool` spreads a batch over processes. This measures
@@ -40,8 +40,8 @@ import torch
 
 import safeio
 
-from .pool import PlanPool, PlanRequest, available_cpus
-from .results import CandidateSet, PlanResult
+from planner.pool import PlanPool, PlanRequest, available_cpus
+from planner.results import CandidateSet, PlanResult
 
 
 def fingerprint(r: Any) -> Any:
@@ -207,7 +207,7 @@ def format_table(r: dict[str, Any]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m planner.bench_pool", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.planner_pool", description=__doc__.split("\n\n")[0])
     ap.add_argument("--workers", type=int, default=2, help="worker processes to compare with in-process planning")
     ap.add_argument("--mde", default=None, metavar="CHECKPOINT",
                     help="a saved mde.HeteroscedasticGPMDE, e.g. a run's mde_iterNNN.pt (default: none)")

@@ -1,4 +1,4 @@
-"""STAND-INS for the learned dynamics model and the MDE (tests and ``planner.bench`` only).
+"""STAND-INS for the learned dynamics model and the MDE (tests and ``benchmarks.planner`` only).
 
 The real dynamics model (trained on source-world simulator data) and the real heteroscedastic
 GP MDE (``mde.HeteroscedasticGPMDE``) are built elsewhere. Until they exist, the planner is
@@ -29,10 +29,10 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from .config import PlannerConfig
-from .interfaces import FEATURE_DIM, SKILL_MOVE, SKILL_POUR, STATE_DIM, features
-from .rrt import _torch_threads
-from .sampling import ActionSampler
+from planner.config import PlannerConfig
+from planner.interfaces import FEATURE_DIM, SKILL_MOVE, SKILL_POUR, STATE_DIM, features
+from planner.rrt import _torch_threads
+from planner.sampling import ActionSampler
 
 # -- analytic pouring stand-in ------------------------------------------------------------------
 TARGET_CUP_X = 0.15  # centre of the target cup's mouth (m)

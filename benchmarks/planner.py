@@ -1,7 +1,7 @@
-"""Planner speed benchmark: ``python -m planner.bench [--out bench.json]``.
+"""Planner speed benchmark: ``python -m benchmarks.planner [--out bench.json]``.
 
 Measures, with the stand-in dynamics model (analytic pouring + an 8-128-128-5 MLP, see
-:mod:`planner.standins`) and an MDE fitted on ``--mde-points`` synthetic points:
+:mod:`tests.doubles.standins`) and an MDE fitted on ``--mde-points`` synthetic points:
 
 1. raw batched throughput of dynamics + MDE (rows/s per batch size);
 2. single-candidate planning over ``--problems`` problems from the default problem
@@ -12,8 +12,8 @@ Measures, with the stand-in dynamics model (analytic pouring + an 8-128-128-5 ML
 4. full candidate sets (N = ``--candidates``) for ``--candidate-problems`` problems.
 
 The MDE is ``mde.HeteroscedasticGPMDE`` when importable and fittable (``--mde auto``, the
-default) and otherwise the :class:`~planner.standins.StandInGPMDE`; the table says which. The
-deviation labels are synthetic (:func:`~planner.standins.synthetic_deviation_dataset`), so found
+default) and otherwise the :class:`~tests.doubles.standins.StandInGPMDE`; the table says which. The
+deviation labels are synthetic (:func:`~tests.doubles.standins.synthetic_deviation_dataset`), so found
 rates here say nothing about the real task; only the timings are the point.
 """
 
@@ -33,10 +33,10 @@ import torch
 
 import safeio
 
-from .config import PlannerConfig
-from .problems import sample_problems
-from .rrt import Planner, _Evaluator, _torch_threads
-from .standins import StandInGPMDE, StandInMLPDynamics, synthetic_deviation_dataset
+from planner.config import PlannerConfig
+from planner.problems import sample_problems
+from planner.rrt import Planner, _Evaluator, _torch_threads
+from tests.doubles.standins import StandInGPMDE, StandInMLPDynamics, synthetic_deviation_dataset
 
 TARGET_PROPS_PER_S = 2000.0
 TARGET_MEDIAN_PLAN_S = 1.0
@@ -60,7 +60,7 @@ def build_mde(kind: str, n_points: int, seed: int, config: PlannerConfig) -> tup
             info["real_mde_unavailable"] = f"{type(e).__name__}: {e}"[:300]
     t = time.perf_counter()
     mde = StandInGPMDE(seed=seed).fit(X, d)
-    info.update(kind="planner.standins.StandInGPMDE (stand-in)", fit_s=time.perf_counter() - t)
+    info.update(kind="tests.doubles.standins.StandInGPMDE (stand-in)", fit_s=time.perf_counter() - t)
     return mde, info
 
 
@@ -119,7 +119,7 @@ def run(problems: int = 30, seed: int = 0, mde: str = "auto", mde_points: int = 
         config = config.replace(time_budget=time_budget)
     if dynamics_path is None:
         dynamics = StandInMLPDynamics(seed=seed)
-        dyn_info = "planner.standins.StandInMLPDynamics (stand-in: analytic + 8-128-128-5 MLP)"
+        dyn_info = "tests.doubles.standins.StandInMLPDynamics (stand-in: analytic + 8-128-128-5 MLP)"
     else:  # a trained f_hat checkpoint; imported here only, the planner itself needs no dynamics package
         from dynamics import LearnedDynamics
 
@@ -130,7 +130,7 @@ def run(problems: int = 30, seed: int = 0, mde: str = "auto", mde_points: int = 
         from dynamics import ContactAwareDynamics
         from sim.world import WorldConfig
 
-        from .config import ProblemDistribution
+        from planner.config import ProblemDistribution
 
         world = WorldConfig.load()
         dynamics = ContactAwareDynamics(dynamics, world)
@@ -234,7 +234,7 @@ def format_table(r: dict[str, Any]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m planner.bench", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.planner", description=__doc__.split("\n\n")[0])
     ap.add_argument("--problems", type=int, default=30, help="problems planned with one candidate each")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--mde", choices=("auto", "real", "standin"), default="auto",

@@ -1,6 +1,6 @@
 """Inference throughput of the dynamics model on this CPU (what the planner pays per propagation).
 
-    python -m dynamics.bench [--out FILE] [--untrained] [--config-name NAME] [key=value ...]
+    python -m benchmarks.dynamics [--out FILE] [--untrained] [--config-name NAME] [key=value ...]
 
 Times ``predict`` (torch, batched, input checks included) and the numpy path (``predict_np`` /
 ``predict_one``) at batch 1 (a move and a pour separately) and batch 1024 (half moves, half
@@ -25,7 +25,7 @@ import torch
 
 import safeio
 
-from .model import LearnedDynamics
+from dynamics.model import LearnedDynamics
 
 
 def _time(fn: Callable[[], Any], min_seconds: float = 0.2, repeats: int = 5) -> float:
@@ -94,7 +94,7 @@ def bench(model: LearnedDynamics, threads: list[int], batches: tuple[int, ...] =
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    ap = argparse.ArgumentParser(prog="python -m dynamics.bench", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.dynamics", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default=".cache/dynamics/bench.json", help="JSON output file")
     ap.add_argument("--untrained", action="store_true", help="time a freshly initialised network")
@@ -103,8 +103,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--repeats", type=int, default=5, help="timing rounds (the best is reported)")
     ap.add_argument("overrides", nargs="*", help="Hydra-style overrides of configs/dynamics")
     args = ap.parse_args(argv)
-    from .evaluate import compose_config
-    from .train import cache_paths
+    from dynamics.evaluate import compose_config
+    from dynamics.train import cache_paths
 
     cfg = compose_config(args.config_name, args.overrides)
     ckpt = cache_paths(cfg)["checkpoint"]

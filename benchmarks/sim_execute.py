@@ -1,8 +1,8 @@
 """Wall time to execute a batch of target-world trajectories, with the share per stage, and a
 resolution check of a reference pour.
 
-    python -m sim.bench_execute [--n 32] [--actions 6] [--out benchmarks/execute.json] [--resolution]
-    python -m sim.bench_execute --skip-batch --spread --spread-dx 0.01 0.005 0.0025 --arch gpu
+    python -m benchmarks.sim_execute [--n 32] [--actions 6] [--out benchmarks/execute.json] [--resolution]
+    python -m benchmarks.sim_execute --skip-batch --spread --spread-dx 0.01 0.005 0.0025 --arch gpu
 """
 
 import argparse
@@ -12,10 +12,10 @@ import numpy as np
 
 import safeio
 
-from .execute import PouringExecutor
-from .problems import sample_problems
-from .skills import move, pour, random_actions
-from .world import WorldConfig
+from sim.execute import PouringExecutor
+from sim.problems import sample_problems
+from sim.skills import move, pour, random_actions
+from sim.world import WorldConfig
 
 
 def bench_batch(cfg: WorldConfig, n: int, n_actions: int, seed: int = 0, arch: str | None = None,
@@ -115,7 +115,7 @@ def outcome_spread(cfg: WorldConfig, dxs=(0.01, 0.005), n: int = 32, thetas=(1.3
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m sim.bench_execute", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.sim_execute", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, default=32)
     ap.add_argument("--actions", type=int, default=6)

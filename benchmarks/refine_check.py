@@ -4,8 +4,8 @@ Plans the run's test problems with the run's final MDE (or with the model alone,
 refines each found plan's last pour in the differentiable source-world simulator, executes the
 unrefined and the refined plans in the chosen world, and prints the paired comparison.
 
-    python -m active.refine_check outputs/quick/all/seed0 --method active_balanced --steps 5
-    python -m active.refine_check RUN_DIR --no-mde --world source --problems 20
+    python -m benchmarks.refine_check outputs/quick/all/seed0 --method active_balanced --steps 5
+    python -m benchmarks.refine_check RUN_DIR --no-mde --world source --problems 20
 """
 
 from __future__ import annotations
@@ -36,9 +36,9 @@ def run_check(run_dir: Path, method: str | None, steps: int, lr: float, world_na
     from sim.problems import sample_problems
     from sim.world import WorldConfig, check_world
 
-    from .experiment import ExperimentConfig
-    from .loop import build_planner_config, derive_seed
-    from .refine import refine_plans
+    from active.experiment import ExperimentConfig
+    from active.loop import build_planner_config, derive_seed
+    from active.refine import refine_plans
 
     check_world(world_name)
     cfg_path = run_dir / "config.json"
@@ -114,7 +114,7 @@ def run_check(run_dir: Path, method: str | None, steps: int, lr: float, world_na
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m active.refine_check", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.refine_check", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("run_dir", type=Path)
     ap.add_argument("--method", default=None, help="whose final MDE to plan with (default: the run's first method)")

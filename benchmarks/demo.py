@@ -1,7 +1,7 @@
 """Render scripted pours as GIFs: a pour under the canopy that fills the target cup, a pour from above
 the leaves that spills onto the plant, and a path through a leaf that gets stuck.
 
-    python -m sim.demo --out outputs/demo [--world target|source]
+    python -m benchmarks.demo --out outputs/demo [--world target|source]
 """
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .execute import PouringExecutor
-from .render import save_gif
-from .skills import move, pour
-from .world import WorldConfig
+from sim.execute import PouringExecutor
+from sim.render import save_gif
+from sim.skills import move, pour
+from sim.world import WorldConfig
 
 SCRIPTS = {
     "under_canopy": ([0.42, 0.20], [move(0.31, 0.14), pour(1.5, 0.5)]),
@@ -25,7 +25,7 @@ SCRIPTS = {
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m sim.demo", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.demo", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=Path("outputs/demo"))
     ap.add_argument("--world", default="target", choices=["source", "target"])

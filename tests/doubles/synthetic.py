@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from .data import MOVE, POUR, Transitions
+from dynamics.data import MOVE, POUR, Transitions
 
 BLOCK_X, BLOCK_TOP = 0.30, 0.12
 

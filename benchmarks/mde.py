@@ -1,6 +1,6 @@
 """Speed benchmark of the MDE: fit time and batched prediction throughput.
 
-    python -m mde.bench [--sizes 200 1200 3000] [--out bench_mde.json]
+    python -m benchmarks.mde [--sizes 200 1200 3000] [--out bench_mde.json]
 
 Synthetic data, d = 7, with input-dependent noise (the case the heteroscedastic GP is for).
 Prediction is timed on the model fitted with the size closest to 1200 (the paper protocol's
@@ -11,7 +11,7 @@ fit(1200) <= 30 s and predict(10 000) <= 0.2 s.
 The figures are only meaningful on an otherwise idle CPU: with other busy processes on 2 cores,
 two OpenMP threads wait on each other and everything gets 2-10x slower and erratic; the table
 prints the load average. On a shared machine run it as ``OMP_WAIT_POLICY=PASSIVE python -m
-mde.bench`` (GNU OpenMP reads it at start-up; spinning threads are what hurts) or with
+benchmarks.mde`` (GNU OpenMP reads it at start-up; spinning threads are what hurts) or with
 ``--threads 1``.
 """
 
@@ -30,7 +30,7 @@ import torch
 
 import safeio
 
-from .model import HeteroscedasticGPMDE
+from mde.model import HeteroscedasticGPMDE
 
 TARGET_FIT_1200_S = 30.0
 TARGET_PREDICT_10K_S = 0.2
@@ -183,7 +183,7 @@ def format_table(result: dict[str, Any]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m mde.bench", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.mde", description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[200, 1200, 3000])
     parser.add_argument("--batch", type=int, default=10_000)
     parser.add_argument("--d", type=int, default=7)
