@@ -315,7 +315,7 @@ def solver_dict(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
 #: solver settings added after datasets were cached, with the value that switches their term off: at that
 #: value the solver's numbers are bit-identical to those of the code before the setting existed
 #: (tests/test_sim_solver.py), so they are left out of the data hash and older caches stay valid
-NEUTRAL_SOLVER_SETTINGS = {"viscosity": 0.0, "stretch_relax": 0.0}
+NEUTRAL_SOLVER_SETTINGS = {"viscosity": 0.0, "stretch_relax": 0.0, "boundary_density": False}
 
 
 def _digest(obj: Any) -> str:

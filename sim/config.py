@@ -48,6 +48,12 @@ class SimConfig:
     #: s, > 0: stretch (J > 1, negative pressure) decays towards J = 1 with this time constant, so
     #: tension holds a stream together but is not stored as history; 0 = off (mpm88)
     stretch_relax: float = 0.0
+    #: True: grid nodes inside a wall or collider count as water at rest density in that grid-density
+    #: estimate (ghost mass, as SPH's boundary particles), so water piled up against a wall reads as
+    #: compressed and is pushed back out; False: solid nodes hold only the mass the water gave them, so the
+    #: layers next to walls pack denser than the bulk and keep it (8 cm of water at rest sinks 7 % instead of
+    #: 2 %, tests/test_sim_solver.py), and how much packs depends on the water's history
+    boundary_density: bool = False
     ppc: int = 4  # particles per cell at rest (must be k**dim)
     n_envs: int = 1  # B, independent environments sharing one set of fields
     max_particles: int = 1024  # per environment

@@ -101,7 +101,8 @@ class DiffMPM:
         self.grid_v_in = ti.Vector.field(2, real, needs_grad=True)
         self.grid_m = ti.field(real, needs_grad=True)
         self.grid_v_out = ti.Vector.field(2, real, needs_grad=True)
-        fb.dense(ti.ijk, (B,) + self.res).place(self.grid_v_in, self.grid_m, self.grid_v_out)
+        self.grid_rho = ti.field(real, needs_grad=True)  # mass for the density estimate (sim.boundary_density)
+        fb.dense(ti.ijk, (B,) + self.res).place(self.grid_v_in, self.grid_m, self.grid_v_out, self.grid_rho)
         self.cup_pose = ti.Vector.field(3, real, needs_grad=True)
         self.cup_vel = ti.Vector.field(3, real, needs_grad=True)
         fb.dense(ti.ij, (self.T_max, B)).place(self.cup_pose, self.cup_vel)
@@ -222,6 +223,8 @@ class DiffMPM:
             self.grid_v_in[I] = ti.Vector.zero(self.real, 2)
             self.grid_m[I] = 0.0
             self.grid_v_out[I] = ti.Vector.zero(self.real, 2)
+            self.grid_rho[I] = 0.0
+            self.grid_rho.grad[I] = 0.0
             self.grid_v_in.grad[I] = ti.Vector.zero(self.real, 2)
             self.grid_m.grad[I] = 0.0
             self.grid_v_out.grad[I] = ti.Vector.zero(self.real, 2)
@@ -261,6 +264,8 @@ class DiffMPM:
                 if phi < 0:
                     v = self._separate(v, vc, n)
                 self.grid_v_out[b, i, j] = v
+                if ti.static(self.sc.boundary_density):  # ghost mass, as MPMSolver._update_node
+                    self.grid_rho[b, i, j] = ti.select(phi < 0, ti.max(m, ti.static(self.sc.ppc * self.p_mass)), m)
         # 3. grid to particle, advection, collider projection, position clamp
         ti.loop_config(block_dim=1)
         for b in range(self.B):
@@ -278,7 +283,9 @@ class DiffMPM:
                     g_v = self.grid_v_out[b, base[0] + i, base[1] + j]
                     new_v += weight * g_v
                     new_C += 4.0 * inv_dx * weight * g_v.outer_product(dpos)
-                    if ti.static(self.sc.volume_correction):
+                    if ti.static(self.sc.volume_correction and self.sc.boundary_density):
+                        mass_near += weight * self.grid_rho[b, base[0] + i, base[1] + j]
+                    elif ti.static(self.sc.volume_correction):
                         mass_near += weight * self.grid_m[b, base[0] + i, base[1] + j]
                 xn = self.x[s, b, p] + dt * new_v
                 phi, n, vc = self._closest(b, t, xn)

@@ -474,6 +474,8 @@ class MPMSolver:
             if phi < 0:
                 n, vc = self._normal_and_velocity(b, idx, pos)
                 v = self._separate(v, vc, n)
+                if ti.static(self.cfg.boundary_density):  # ghost mass: a solid node reads as water at rest
+                    self.grid_m[I] = ti.max(m, ti.static(self.cfg.ppc * self.p_mass))
             self.grid_v[I] = v
 
     @ti.func

@@ -218,10 +218,10 @@ def test_forward_agrees_with_production_on_partial_pours(cfg):
     assert np.all(np.abs(diff - prod) <= 0.05), (diff, prod)
 
 
-def test_viscosity_and_stretch_relaxation_act_in_the_differentiable_solver(cfg, dp):
-    """The shared physics functions reach the f64 solver: a viscous world with stretch relaxation
-    pours differently from the default one, and its gradients are finite."""
-    sim = dict(cfg.sim, viscosity=5.0, stretch_relax=0.02)
+def test_viscosity_stretch_relaxation_and_boundary_density_act_in_the_differentiable_solver(cfg, dp):
+    """The shared physics options reach the f64 solver: a viscous world with stretch relaxation and
+    ghost wall mass pours differently from the default one, and its gradients are finite."""
+    sim = dict(cfg.sim, viscosity=5.0, stretch_relax=0.02, boundary_density=True)
     thick = WorldConfig.from_mapping({**cfg.__dict__, "sim": sim, "controlled_cup": cfg.controlled_cup.__dict__,
                                       "target_cup": cfg.target_cup.__dict__})
     p = np.array([[0.31, 0.14, 1.6, 0.0]] * 2)

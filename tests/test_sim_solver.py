@@ -84,6 +84,26 @@ def test_stretch_relaxation_removes_stored_stretch():
     assert relaxed < 0.5 * kept, (kept, relaxed)
 
 
+def test_boundary_density_keeps_the_volume_of_water_at_rest():
+    """8 cm of water at rest in a cup for 1 s. Hydrostatic compression at c = 12 m/s is g h / c^2 =
+    0.5 %; without ghost mass in the walls the layers next to them pack denser and the surface
+    sinks 7 % (measured 0.0747 m), with it 2 % (0.0783 m). Same particles, deterministic CPU runs."""
+    def surface(boundary_density: bool) -> float:
+        solver = MPMSolver(SimConfig(domain=(0.6, 0.6), dx=0.01, dt=4e-4, max_particles=2048,
+                                     boundary_density=boundary_density))
+        cup = Body("cup", pose=(0.30, 0.10, 0.0), shapes=open_box(0.10, 0.12, 0.02))
+        solver.reset([EnvSpec(bodies=[cup], water=[WaterBlock((-0.05, 0.0), (0.05, 0.08), body="cup")])])
+        solver.advance(1.0)
+        top = float(solver.positions(0)[:, 1].max()) - 0.10
+        assert not solver.stability()["unstable"][0]
+        solver.close()
+        return top
+
+    plain, ghost = surface(False), surface(True)
+    assert ghost > plain + 0.002, (plain, ghost)
+    assert abs(ghost - 0.08) < 0.03 * 0.08, ghost
+
+
 def test_unknown_key_lists_known_keys():
     with pytest.raises(ConfigError, match="known keys"):
         SimConfig.from_mapping({"dxx": 0.01})
