@@ -10,20 +10,27 @@ from .methods import METHODS, check_method
 
 @dataclass(frozen=True)
 class ExperimentConfig:
+    """The protocol of one experiment (``configs/experiment/<name>.yaml``, the ``experiment:`` block).
+
+    The YAMLs are the source of truth: each sets every field (tests/test_config_overrides.py), and the
+    defaults here are those of ``experiment=quick``, the default experiment. The planner's candidates,
+    d_max and budgets are interpolated from here into ``configs/planner/default.yaml``.
+    """
+
     name: str = "quick"
     methods: tuple[str, ...] = ("active_balanced", "random_plan")
-    iterations: int = 4
-    trajectories_per_iteration: int = 4
-    refit_every: int = 4
-    candidates: int = 4
-    test_problems: int = 8
+    iterations: int = 8
+    trajectories_per_iteration: int = 6
+    refit_every: int = 6
+    candidates: int = 5
+    test_problems: int = 10
     random_actions_length: int = 6
     d_max: float = 0.07
     beta_train: tuple[float, float] = (-2.0, 1.0)
-    beta_switch_iteration: int = 10
+    beta_switch_iteration: int = 4
     beta_test: float = 2.0
     calibration_trajectories: int = 8
-    planner_propagation_budget: int = 5000  # per candidate: the deterministic budget
+    planner_propagation_budget: int = 3000  # per candidate: the deterministic budget
     planner_time_budget: float = 30.0  # s per candidate: a safety net only (wall clock is not reproducible)
     #: the planner's model knows the source world's static obstacles (target cup, tank walls) and
     #: predicts moves / pours that hit them as stuck (dynamics.ContactAwareDynamics); the plant stays unknown

@@ -13,6 +13,7 @@ the CPU with the same seed, ends with the same results (all randomness is derive
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import inspect
 import json
@@ -30,10 +31,10 @@ import safeio
 from planner import ActionSampler, PlannerConfig, features
 from planner.pool import PlanPool, PlanRequest, resolve_workers
 from sim.execute import PouringExecutor
-from sim.problems import Problem, sample_problems
 from sim.skills import pour
 from sim.world import WorldConfig
 from task import FEATURE_NAMES, state_distance
+from task.problems import Problem, sample_problems
 
 from .experiment import ExperimentConfig
 from .io import load_torch, save_torch, write_csv
@@ -113,28 +114,72 @@ class Context:
         return self.pool
 
 
-def build_planner_config(world: WorldConfig, planner: Mapping[str, Any], exp: ExperimentConfig) -> PlannerConfig:
-    """The planner's ranges come from the world (one source of truth for skill limits).
+#: planner keys the world or the experiment fixes: ``configs/planner/default.yaml`` interpolates them from
+#: their source, and a run whose planner value differs from the source's (set on the planner side) is refused
+DERIVED_PLANNER_KEYS = {
+    "move_x": "world.skills.move.x", "move_y": "world.skills.move.y", "pour_theta": "world.skills.pour.theta",
+    "pour_hold": "world.skills.pour.hold", "max_actions": "world.skills.max_actions",
+    "spill_limit": "world.problems.max_spill", "d_max": "experiment.d_max", "n_candidates": "experiment.candidates",
+    "time_budget": "experiment.planner_time_budget",
+    "propagation_budget": "experiment.planner_propagation_budget",
+}
+#: PlannerConfig fields that are no settings of a run, and where their values come from instead
+NOT_RUN_SETTINGS = {
+    "beta": "experiment.beta_train / experiment.beta_test (passed with every planning call)",
+    "seed": "the run's seed (every planning call derives its own)",
+    "goal_tol": "experiment.plan_goal_tol (null: world.problems.tolerance)",
+}
 
-    ``planner.workers`` is validated here but is not a :class:`PlannerConfig` field (it says where
-    plans are computed, not what they are): see :func:`planner_workers`.
+
+def build_planner_config(world: WorldConfig, planner: Mapping[str, Any], exp: ExperimentConfig) -> PlannerConfig:
+    """The run's :class:`PlannerConfig` from the ``planner:`` block, checked against world and experiment.
+
+    The keys of :data:`DERIVED_PLANNER_KEYS` must equal their source (the YAML interpolates them; an
+    absent one is taken from the source); the goal band is ``experiment.plan_goal_tol`` or the world's
+    tolerance. Unknown keys and :data:`NOT_RUN_SETTINGS` are refused, naming the allowed keys.
+    ``planner.workers`` is validated here but is not a :class:`PlannerConfig` field (it says where plans
+    are computed, not what they are): see :func:`planner_workers`.
     """
-    sk = world.skills
     d = dict(planner)
     d.pop("_target_", None)
     planner_workers(d)
     d.pop("workers", None)
-    d.update(move_x=list(sk["move"]["x"]), move_y=list(sk["move"]["y"]), pour_theta=list(sk["pour"]["theta"]),
-             pour_hold=list(sk["pour"]["hold"]), max_actions=int(sk["max_actions"]),
-             goal_tol=_plan_goal_tol(world, exp), spill_limit=float(world.problems["max_spill"]),
-             d_max=exp.d_max, n_candidates=exp.candidates, propagation_budget=exp.planner_propagation_budget,
-             time_budget=exp.planner_time_budget)
-    lo, hi = list(d["state_low"]), list(d["state_high"])
-    lo[0], hi[0] = min(lo[0], sk["move"]["x"][0]), max(hi[0], sk["move"]["x"][1])
-    lo[1], hi[1] = min(lo[1], sk["move"]["y"][0]), max(hi[1], sk["move"]["y"][1])
-    hi[2] = max(hi[2], sk["pour"]["theta"][1])
-    d["state_low"], d["state_high"] = lo, hi
+    allowed = sorted(({f.name for f in dataclasses.fields(PlannerConfig)} - set(NOT_RUN_SETTINGS)) | {"workers"})
+    unknown = sorted(set(d) - set(allowed) - set(NOT_RUN_SETTINGS))
+    if unknown:
+        raise ValueError(f"unknown planner key(s) {['planner.' + k for k in unknown]}; allowed: {allowed}")
+    fixed = sorted(set(d) & set(NOT_RUN_SETTINGS))
+    if fixed:
+        raise ValueError("; ".join(f"planner.{k} is not a setting of a run: its value is {NOT_RUN_SETTINGS[k]}"
+                                   for k in fixed))
+    for k, src in DERIVED_PLANNER_KEYS.items():
+        want = _source_value(src, world, exp)
+        if k not in d:
+            d[k] = want
+        elif _plain(d[k]) != _plain(want):
+            raise ValueError(f"planner.{k} = {d[k]!r} differs from {src} = {want!r}: the planner's value is "
+                             f"{src}'s (configs/planner/default.yaml interpolates it); set {src} instead")
+    d["goal_tol"] = _plan_goal_tol(world, exp)
     return PlannerConfig.from_dict(d)
+
+
+def _source_value(path: str, world: WorldConfig, exp: ExperimentConfig) -> Any:
+    head, *rest = path.split(".")
+    if head == "experiment":
+        return getattr(exp, rest[0])
+    cur: Any = getattr(world, rest[0])
+    for k in rest[1:]:
+        cur = cur[k]
+    return cur
+
+
+def _plain(v: Any) -> Any:
+    """Numbers as floats, sequences as tuples: ``[0.1, 0.52]`` (YAML) equals ``(0.1, 0.52)``."""
+    if isinstance(v, (list, tuple)):
+        return tuple(_plain(x) for x in v)
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        return float(v)
+    return v
 
 
 def planner_workers(planner: Mapping[str, Any]) -> int:

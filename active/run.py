@@ -42,14 +42,11 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     from planner import ActionSampler
     from planner.pool import PlanPool
     from sim.execute import PouringExecutor
-    from sim.problems import sample_problems
-    from sim.world import WorldConfig
+    from task.problems import sample_problems
 
-    from .experiment import ExperimentConfig
     from .io import write_json
-    from .loop import (Context, MethodRun, acquisition_factory, build_planner_config, derive_seed,
-                       make_calibration_set, planner_workers)
-    from .preflight import check_dynamics, check_geometry, check_seed, check_writable
+    from .loop import Context, MethodRun, acquisition_factory, derive_seed, make_calibration_set
+    from .preflight import check_dynamics, check_seed, check_writable
     from .report import report
     from .rundir import check_run_directory, clean_leftovers, load_calibration, save_calibration
     from .runlock import RunLock
@@ -61,12 +58,7 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     # ---- validate everything before any compute (and before touching the output directory)
     seed = check_seed(cfg.get("seed"))
     progress = bool(cfg.get("progress", True))
-    exp = ExperimentConfig.from_mapping(cfg["experiment"], method=str(cfg.get("method", "all")))
-    world = WorldConfig.from_mapping(cfg["world"])
-    check_geometry(world)
-    planner_cfg = build_planner_config(world, cfg["planner"], exp)
-    check_seed(planner_cfg.seed, "planner.seed")
-    workers = planner_workers(cfg["planner"])
+    exp, world, planner_cfg, workers = run_settings(cfg)
     make_acq = acquisition_factory(cfg["acquisition"], exp)
     mde_cfg = dict(cfg["mde"])
 
@@ -118,6 +110,23 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     print(made["table"])
     print(f"results and figures in {out} ({time.perf_counter() - t0:.0f} s)")
     return made
+
+
+def run_settings(cfg: Mapping[str, Any]) -> tuple[Any, Any, Any, int]:
+    """What a run of ``cfg`` is set to, validated before any compute: its ``ExperimentConfig``, its
+    ``WorldConfig`` (checked against the geometry), the ``PlannerConfig`` every planning call gets and
+    the number of planner processes. Errors name the key and what is allowed."""
+    from sim.world import WorldConfig
+
+    from .experiment import ExperimentConfig
+    from .loop import build_planner_config, planner_workers
+    from .preflight import check_geometry
+
+    exp = ExperimentConfig.from_mapping(cfg["experiment"], method=str(cfg.get("method", "all")))
+    world = WorldConfig.from_mapping(cfg["world"])
+    check_geometry(world)
+    planner_cfg = build_planner_config(world, cfg["planner"], exp)
+    return exp, world, planner_cfg, planner_workers(cfg["planner"])
 
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"

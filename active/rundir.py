@@ -44,15 +44,58 @@ def accepted_digests(cfg: Mapping[str, Any], recorded: Mapping[str, Any] | None)
     """Digests of state written by a configuration whose results are comparable with ``cfg``.
 
     The current digest, the legacy one of ``cfg``, and - when the directory's ``config.json``
-    (``recorded``) is comparable with ``cfg`` - the legacy digest of the recorded configuration
-    (a finished run whose dynamics cache has moved since).
+    (``recorded``, read in today's form: :func:`upgrade_config`) is comparable with ``cfg`` - the
+    digests of the recorded configuration (a finished run whose dynamics cache has moved since, or
+    one recorded before the planner's keys were derived).
     """
     from .loop import config_digest
 
     out = {config_digest(cfg), legacy_config_digest(cfg)}
-    if recorded is not None and config_digest(recorded) == config_digest(cfg):
-        out.add(legacy_config_digest(recorded))
+    if recorded is not None and config_digest(upgrade_config(recorded)) == config_digest(cfg):
+        out.update({config_digest(recorded), legacy_config_digest(recorded)})
     return frozenset(out)
+
+
+#: experiment keys a config written before every experiment YAML set them could lack, with the value
+#: the run then had (the dataclass default)
+PRE_DERIVATION_EXPERIMENT = {"planner_time_budget": 30.0, "known_obstacles": True, "refine_steps": 0,
+                             "refine_lr": 0.05}
+
+
+def upgrade_config(cfg: Mapping[str, Any]) -> dict:
+    """A configuration recorded before the planner's task and protocol keys were derived, in today's form.
+
+    Such a ``planner:`` block held ``beta``, ``seed``, ``goal_tol``, a ``problems:`` block and literal
+    values of the keys :data:`active.loop.DERIVED_PLANNER_KEYS` now interpolates, which the run
+    overwrote (and widened the state bounds to the action ranges); it is rewritten with the values
+    that acted, so its results count as this configuration's. Any other configuration comes back as
+    a plain copy.
+    """
+    from .loop import DERIVED_PLANNER_KEYS
+
+    c = json.loads(json.dumps(cfg, default=str))
+    p, w, e = c.get("planner"), c.get("world"), c.get("experiment")
+    if not (isinstance(p, dict) and isinstance(p.get("problems"), dict) and isinstance(w, dict)
+            and isinstance(e, dict)):
+        return c
+    for k, v in PRE_DERIVATION_EXPERIMENT.items():
+        e.setdefault(k, v)
+    for k in ("beta", "seed", "goal_tol", "problems"):
+        p.pop(k, None)
+    try:
+        for k, src in DERIVED_PLANNER_KEYS.items():
+            cur: Any = c
+            for part in src.split("."):
+                cur = cur[part]
+            p[k] = cur
+        lo, hi = list(p["state_low"]), list(p["state_high"])
+        lo[0], hi[0] = min(lo[0], p["move_x"][0]), max(hi[0], p["move_x"][1])
+        lo[1], hi[1] = min(lo[1], p["move_y"][0]), max(hi[1], p["move_y"][1])
+        hi[2] = max(hi[2], p["pour_theta"][1])
+    except (KeyError, TypeError, IndexError):  # not a complete configuration: nothing to match
+        return json.loads(json.dumps(cfg, default=str))
+    p["state_low"], p["state_high"] = lo, hi
+    return c
 
 
 def config_differences(old: Mapping[str, Any] | None, new: Mapping[str, Any], limit: int = 12) -> list[str]:
@@ -61,7 +104,7 @@ def config_differences(old: Mapping[str, Any] | None, new: Mapping[str, Any], li
 
     if old is None:
         return []
-    a, b = _flat(comparable_config(old)), _flat(comparable_config(new))
+    a, b = _flat(comparable_config(upgrade_config(old))), _flat(comparable_config(new))
     diffs = [f"{k}: {a.get(k, '(absent)')!r} -> {b.get(k, '(absent)')!r}" for k in sorted(set(a) | set(b))
              if a.get(k, "(absent)") != b.get(k, "(absent)")]
     return diffs[:limit] + ([f"... and {len(diffs) - limit} more"] if len(diffs) > limit else [])

@@ -4,8 +4,8 @@ Measures, with the stand-in dynamics model (analytic pouring + an 8-128-128-5 ML
 :mod:`tests.doubles.standins`) and an MDE fitted on ``--mde-points`` synthetic points:
 
 1. raw batched throughput of dynamics + MDE (rows/s per batch size);
-2. single-candidate planning over ``--problems`` problems from the default problem
-   distribution: propagations/s (model + MDE evaluations per second of planning), OMPL
+2. single-candidate planning over ``--problems`` problems of the default world
+   (``task.problems``): propagations/s (model + MDE evaluations per second of planning), OMPL
    expansions/s, median plan time, found rate;
 3. the same with batching switched off (batch size 1: one model + MDE call per propagation),
    to show what batching buys;
@@ -34,8 +34,8 @@ import torch
 import safeio
 
 from planner.config import PlannerConfig
-from planner.problems import sample_problems
 from planner.rrt import Planner, _Evaluator, _torch_threads
+from task.problems import sample_problems
 from tests.doubles.standins import StandInGPMDE, StandInMLPDynamics, synthetic_deviation_dataset
 
 TARGET_PROPS_PER_S = 2000.0
@@ -86,7 +86,7 @@ def batch_throughput(dynamics: Any, mde: Any, config: PlannerConfig, sizes: Sequ
 def plan_problems(planner: Planner, problems: list, seed: int) -> dict[str, Any]:
     runs = []
     for i, pr in enumerate(problems):
-        r = planner.plan(pr.start, pr.goal, tol=pr.tol, seed=seed + i)
+        r = planner.plan(pr.start, pr.goal, seed=seed + i)
         runs.append(r.stats)
     total_t = sum(s.time_s for s in runs)
     times = [s.time_s for s in runs]
@@ -125,21 +125,16 @@ def run(problems: int = 30, seed: int = 0, mde: str = "auto", mde_points: int = 
 
         dynamics = LearnedDynamics.load(dynamics_path)
         dyn_info = f"dynamics.LearnedDynamics ({dynamics_path})"
-    dist = None
+    from sim.world import WorldConfig
+
+    world = WorldConfig.load()  # the default world: its problems (task.problems), and its obstacles if known
     if known_obstacles:  # as the experiment runs it: contacts with the target cup and tank predicted
         from dynamics import ContactAwareDynamics
-        from sim.world import WorldConfig
 
-        from planner.config import ProblemDistribution
-
-        world = WorldConfig.load()
         dynamics = ContactAwareDynamics(dynamics, world)
         dyn_info += " + ContactAwareDynamics (default world)"
-        # the bench's wide start ranges would put cups inside the tank floor or the target cup
-        wp = world.problems
-        dist = ProblemDistribution(start_x=tuple(wp["start_x"]), start_y=tuple(wp["start_y"]), goal=tuple(wp["goal"]))
     model, mde_info = build_mde(mde, mde_points, seed, config)
-    probs = sample_problems(problems, np.random.default_rng(seed + 1), config, dist)
+    probs = sample_problems(world, problems, np.random.default_rng(seed + 1))
     planner = Planner(dynamics, model, config)
     planner.plan(probs[0].start, probs[0].goal, seed=10**6)  # warm-up (lazy torch/OMPL init)
 
@@ -159,7 +154,7 @@ def run(problems: int = 30, seed: int = 0, mde: str = "auto", mde_points: int = 
     if candidate_problems > 0:
         times, counts, props = [], [], []
         for i, pr in enumerate(probs[:candidate_problems]):
-            cs = planner.plan_candidates(pr.start, pr.goal, tol=pr.tol, seed=seed + 1000 + i)
+            cs = planner.plan_candidates(pr.start, pr.goal, seed=seed + 1000 + i)
             times.append(cs.time_s)
             counts.append(len(cs))
             props.append(cs.propagations)

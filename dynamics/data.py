@@ -283,8 +283,7 @@ def generate_transitions(data: DataConfig, world: str = "source", n_batches: int
     from tqdm.auto import tqdm
 
     from sim.execute import PouringExecutor
-    from sim.problems import sample_problems
-    from sim.world import check_world
+    from task.problems import check_world, sample_problems
 
     check_world(world)
     n_batches = data.n_batches if n_batches is None else int(n_batches)

@@ -6,10 +6,9 @@ dataclasses and the interface helpers in :mod:`planner.interfaces`. Stand-in mod
 ``tests/doubles/standins.py``; ``python -m benchmarks.planner`` measures planning speed.
 """
 
-from .config import PlannerConfig, ProblemDistribution
+from .config import PlannerConfig
 from .interfaces import (ACTION_DIM, FEATURE_DIM, SKILL_MOVE, SKILL_POUR, STATE_DIM, DeviationEstimator,
                          DynamicsModel, features, goal_distance, goal_reached, spill)
-from .problems import PlanningProblem, sample_problems
 from .results import CandidateSet, PlannerStats, PlanResult, Trajectory
 from .rollout import rollout
 from .rrt import Planner
@@ -18,6 +17,6 @@ from .sampling import ActionSampler
 __all__ = [
     "ACTION_DIM", "FEATURE_DIM", "SKILL_MOVE", "SKILL_POUR", "STATE_DIM",
     "ActionSampler", "CandidateSet", "DeviationEstimator", "DynamicsModel", "PlanResult",
-    "Planner", "PlannerConfig", "PlannerStats", "PlanningProblem", "ProblemDistribution",
-    "Trajectory", "features", "goal_distance", "goal_reached", "rollout", "sample_problems", "spill",
+    "Planner", "PlannerConfig", "PlannerStats", "Trajectory", "features", "goal_distance", "goal_reached",
+    "rollout", "spill",
 ]

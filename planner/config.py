@@ -1,15 +1,19 @@
 """Planner configuration: bounds, action ranges, budgets.
 
-The defaults here are the single source of truth; ``configs/planner/default.yaml`` mirrors them
-(a test keeps the two in sync) so that Hydra runs can override any field. The dataclasses do not
-read the YAML themselves because ``configs/`` is not shipped inside the installed package.
+The dataclass defaults are the library's (tests, stand-in benchmarks). A run of ``python -m active.run``
+gets its values from ``configs/planner/default.yaml``: the planner-only keys there mirror these defaults
+(a test keeps them in sync) and the keys the task or the protocol fixes (action ranges, plan length,
+goal band, spill limit, d_max, candidates, budgets) are interpolated from ``world`` and ``experiment``,
+so each is set in one place (``active.loop.build_planner_config`` checks that they agree). The
+dataclasses do not read the YAML themselves because ``configs/`` is not shipped inside the installed
+package.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
 from task import STATE_NAMES
@@ -29,24 +33,6 @@ def _range(name: str, r: Any, lo_limit: float | None = None, hi_limit: float | N
     if hi_limit is not None and hi > hi_limit:
         raise ValueError(f"{name} high end {hi} is above {hi_limit}")
     return (lo, hi)
-
-
-@dataclass(frozen=True)
-class ProblemDistribution:
-    """Distribution of planning problems (start pose, goal amount) used by the bench.
-
-    Starts are upright and full (v_ctrl = 1, v_tgt = 0) at a random pose away from the target
-    cup; the goal is the fraction ``g`` of all water that should end in the target cup.
-    """
-
-    start_x: Range = (0.3, 0.55)
-    start_y: Range = (0.05, 0.3)
-    goal: Range = (0.3, 0.8)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "start_x", _range("problems.start_x", self.start_x))
-        object.__setattr__(self, "start_y", _range("problems.start_y", self.start_y))
-        object.__setattr__(self, "goal", _range("problems.goal", self.goal, 0.0, 1.0))
 
 
 @dataclass(frozen=True)
@@ -72,7 +58,8 @@ class PlannerConfig:
     goal_tol: float = 0.05
     spill_limit: float = 0.02
     #: precondition mu + beta * sigma < d_max; defaults are the paper's test-time values,
-    #: every planning call may override them
+    #: every planning call may override them (the experiment passes beta, d_max, n and seed per call,
+    #: so ``beta`` and ``seed`` are no settings of a run)
     beta: float = 2.0
     d_max: float = 0.07
     n_candidates: int = 9
@@ -107,7 +94,6 @@ class PlannerConfig:
     torch_threads: int | None = 1
     #: OMPL log level while planning: "none", "error", "warn", "info", "debug"
     ompl_log_level: str = "error"
-    problems: ProblemDistribution = field(default_factory=ProblemDistribution)
 
     def __post_init__(self) -> None:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731  (frozen dataclass)
@@ -124,6 +110,10 @@ class PlannerConfig:
         set_("move_y", _range("move_y", self.move_y))
         set_("pour_theta", _range("pour_theta", self.pour_theta))
         set_("pour_hold", _range("pour_hold", self.pour_hold, 0.0))
+        for key, rng_, i in (("move_x", self.move_x, 0), ("move_y", self.move_y, 1), ("pour_theta", self.pour_theta, 2)):
+            if rng_[0] < lo[i] or rng_[1] > hi[i]:  # an action's target is a state: it must lie in the state box
+                raise ValueError(f"{key}={list(rng_)} reaches outside the state bounds of {names[i]} "
+                                 f"[{lo[i]}, {hi[i]}] (state_low[{i}], state_high[{i}]): widen them or narrow {key}")
         w = tuple(float(v) for v in self.distance_weights)
         if len(w) != 4 or any(not math.isfinite(v) or v < 0 for v in w) or sum(w) == 0:
             raise ValueError(f"distance_weights must be 4 finite non-negative numbers, not all 0; got {w}")
@@ -161,8 +151,6 @@ class PlannerConfig:
         for k in ("max_actions", "n_candidates", "propagation_budget", "seed", "batch_min", "batch_max",
                   "last_step_proposals"):
             set_(k, int(getattr(self, k)))
-        if isinstance(self.problems, Mapping):
-            set_("problems", ProblemDistribution(**_known(ProblemDistribution, self.problems, "problems")))
 
     # -- conversion ----------------------------------------------------------------------------
     @classmethod

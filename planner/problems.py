@@ -1,46 +1,18 @@
-"""Planning problems: a start state and a goal amount, plus input validation.
+"""Validation of a planning call's input: start state, goal amount and tolerance, precondition.
 
 Validation lives here (not inside the RRT) so that bad input fails before any OMPL object is
-built, with a message that names the offending field and its allowed range.
+built, with a message that names the offending field and its allowed range. The problems
+themselves (type and sampler) are the task's: :mod:`task.problems`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
-from .config import PlannerConfig, ProblemDistribution
+from .config import PlannerConfig
 from .interfaces import STATE_DIM, STATE_NAMES
-
-
-@dataclass(frozen=True)
-class PlanningProblem:
-    """Start state (5) and goal fraction ``g`` of all water in the target cup, within ``tol``."""
-
-    start: np.ndarray
-    goal: float
-    tol: float = 0.05
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "start", np.asarray(self.start, dtype=float).copy())
-        self.start.setflags(write=False)
-
-
-def sample_problems(n: int, rng: np.random.Generator, config: PlannerConfig | None = None,
-                    distribution: ProblemDistribution | None = None) -> list[PlanningProblem]:
-    """Draw ``n`` problems: upright full cup at a random pose, goal ``g`` uniform in its range."""
-    config = config or PlannerConfig()
-    dist = distribution or config.problems
-    x = rng.uniform(*dist.start_x, size=n)
-    y = rng.uniform(*dist.start_y, size=n)
-    g = rng.uniform(*dist.goal, size=n)
-    out = []
-    for i in range(n):
-        start = np.array([x[i], y[i], 0.0, 1.0, 0.0])
-        out.append(PlanningProblem(start=start, goal=float(g[i]), tol=config.goal_tol))
-    return out
 
 
 def validate_start(start, config: PlannerConfig) -> np.ndarray:

@@ -17,12 +17,11 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from task import STATE_DIM, goal_reached, spill, state_distance  # noqa: F401 - the task's one home, re-exported
+from task import STATE_DIM, WORLDS, check_world, goal_reached, spill, state_distance  # noqa: F401 - the task's one home, re-exported
 
 from .config import ConfigError, SimConfig
 from .scene import Body, EnvSpec, Shape, WaterBlock, open_box
 
-WORLDS = ("source", "target")
 DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "world" / "default.yaml"
 CTRL, TARGET, PLANT = 0, 1, 2  # body indices in every environment
 
@@ -137,9 +136,4 @@ class WorldConfig:
             lo.append([-cup.inner_width / 2 - tol, -tol])
             hi.append([cup.inner_width / 2 + tol, cup.inner_height + tol])
         return [CTRL, TARGET], np.array(lo), np.array(hi)
-
-
-def check_world(world: str) -> None:
-    if world not in WORLDS:
-        raise ValueError(f"world = {world!r}: allowed one of {WORLDS}")
 

@@ -1,4 +1,4 @@
-"""The pouring task, defined once: state layout, skills, spill, goal test, distance.
+"""The pouring task, defined once: state layout, skills, spill, goal test, distance, problems.
 
 A leaf package (numpy and torch only) that the simulator, the planner, the dynamics model and the
 loop all read, so that none of them redefines what a state is or when a goal is reached.
@@ -79,3 +79,6 @@ def state_distance(s_i: np.ndarray, s_j: np.ndarray, weights: Mapping[str, float
     pose = np.linalg.norm(a[..., :3] - b[..., :3], axis=-1)
     vol = np.abs(a[..., 3] - b[..., 3]) + np.abs(a[..., 4] - b[..., 4])
     return w["pose"] * pose + w["volume"] * vol
+
+
+from .problems import WORLDS, Problem, check_world, sample_problems  # noqa: E402 - after the names it may use

@@ -10,7 +10,7 @@ import torch
 import yaml
 
 from planner import (ActionSampler, DeviationEstimator, DynamicsModel, PlannerConfig, features, goal_distance,
-                     goal_reached, sample_problems, spill)
+                     goal_reached, spill)
 from planner.interfaces import describe_action, skill_ids, split_features
 from tests.doubles.standins import AnalyticPouringModel, StandInGPMDE, StandInMLPDynamics, ToyBoxMDE, ToyPointRobot
 
@@ -18,10 +18,19 @@ YAML = Path(__file__).resolve().parents[1] / "configs" / "planner" / "default.ya
 
 
 def test_yaml_mirrors_dataclass_defaults():
+    """Planner-only keys mirror the defaults; the task's and the protocol's are interpolated (world, experiment:
+    tests/test_config_overrides.py); beta, seed and goal_tol come with the run's planning calls."""
     d = yaml.safe_load(YAML.read_text())
     assert d.pop("workers") == "auto"  # process count of planner.pool, deliberately not a PlannerConfig field
-    assert d == PlannerConfig().to_dict()
-    assert PlannerConfig.from_dict(d) == PlannerConfig()
+    derived = {k for k, v in d.items() if isinstance(v, str) and v.startswith("${")}
+    assert derived == {"move_x", "move_y", "pour_theta", "pour_hold", "max_actions", "spill_limit", "d_max",
+                       "n_candidates", "time_budget", "propagation_budget"}
+    default = PlannerConfig().to_dict()
+    assert set(default) - set(d) == {"beta", "seed", "goal_tol"}
+    # the run's state box reaches the world's move range (y up to 0.36 m); the library's default moves stop at 0.35
+    assert d.pop("state_high") == [0.55, 0.36, 2.4, 1.0, 1.0] and default["state_high"] == [0.55, 0.35, 2.4, 1.0, 1.0]
+    assert {k: v for k, v in d.items() if k not in derived} == {k: v for k, v in default.items()
+                                                                if k in d and k not in derived}
 
 
 def test_design_defaults():
@@ -36,10 +45,9 @@ def test_design_defaults():
 def test_overrides_and_omegaconf():
     from omegaconf import OmegaConf
 
-    cfg = OmegaConf.create({"n_candidates": 3, "move_x": [0.1, 0.2], "problems": {"goal": [0.4, 0.5]}})
+    cfg = OmegaConf.create({"n_candidates": 3, "move_x": [0.1, 0.2]})
     c = PlannerConfig.from_dict(cfg, seed=7)
     assert c.n_candidates == 3 and c.move_x == (0.1, 0.2) and c.seed == 7
-    assert c.problems.goal == (0.4, 0.5)
 
 
 @pytest.mark.parametrize("kw, match", [
@@ -52,7 +60,9 @@ def test_overrides_and_omegaconf():
     (dict(batch_min=64, batch_max=16), r"batch_min <= batch_max"),
     (dict(distance_weights=(0, 0, 0, 0)), r"distance_weights"),
     (dict(ompl_log_level="loud"), r"ompl_log_level='loud'"),
-    (dict(problems={"goal": (0.2, 1.2)}), r"problems.goal high end 1.2 is above 1.0"),
+    (dict(problems={"goal": (0.2, 1.2)}), r"unknown planner config key\(s\) \['problems'\]"),
+    (dict(move_y=(0.03, 0.4)), r"move_y=\[0.03, 0.4\] reaches outside the state bounds of y \[0.03, 0.35\]"),
+    (dict(pour_theta=(0.0, 2.5)), r"pour_theta=\[0.0, 2.5\] reaches outside the state bounds of theta"),
 ])
 def test_bad_config_values(kw, match):
     with pytest.raises(ValueError, match=match):
@@ -111,15 +121,3 @@ def test_standins_follow_the_protocols():
         assert isinstance(m, DynamicsModel)
     for m in (StandInGPMDE(), ToyBoxMDE(robot)):
         assert isinstance(m, DeviationEstimator)
-
-
-def test_problem_sampler():
-    c = PlannerConfig()
-    probs = sample_problems(200, np.random.default_rng(0), c)
-    starts = np.array([p.start for p in probs])
-    goals = np.array([p.goal for p in probs])
-    assert starts[:, 0].min() >= 0.3 and starts[:, 0].max() <= 0.55
-    assert starts[:, 1].min() >= 0.05 and starts[:, 1].max() <= 0.3
-    np.testing.assert_array_equal(starts[:, 2:], np.tile([0.0, 1.0, 0.0], (200, 1)))
-    assert goals.min() >= 0.3 and goals.max() <= 0.8
-    assert all(p.tol == c.goal_tol for p in probs)

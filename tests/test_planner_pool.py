@@ -15,8 +15,10 @@ import pytest
 import torch
 
 from benchmarks.planner_pool import fingerprint
-from planner import CandidateSet, Planner, PlannerConfig, PlanResult, sample_problems
+from planner import CandidateSet, Planner, PlannerConfig, PlanResult
 from planner.pool import AUTO_MAX_WORKERS, PlanPool, PlanRequest, available_cpus, dumps, resolve_workers
+from sim.world import WorldConfig
+from task.problems import sample_problems
 from tests.doubles.standins import StandInMLPDynamics, fitted_standin_mde, synthetic_deviation_dataset
 
 CFG = PlannerConfig(propagation_budget=1500, time_budget=60.0, n_candidates=3)
@@ -53,7 +55,7 @@ def pool(dynamics):
 
 def requests() -> list[PlanRequest]:
     """Plans and candidate sets, mixed, with per-request seeds and precondition parameters."""
-    probs = sample_problems(5, np.random.default_rng(1), CFG)
+    probs = sample_problems(WorldConfig.load(), 5, np.random.default_rng(1))
     reqs = [PlanRequest("plan", p.start, p.goal, beta=2.0, d_max=0.07, seed=100 + i) for i, p in enumerate(probs)]
     reqs.insert(2, PlanRequest("candidates", probs[0].start, probs[0].goal, beta=-2.0, d_max=0.07, seed=7, n=3))
     reqs.append(PlanRequest("candidates", probs[3].start, probs[3].goal, beta=1.0, d_max=0.07, seed=8, n=2))

@@ -226,9 +226,14 @@ def plant_deviation(X: np.ndarray) -> np.ndarray:
     return d
 
 
+#: start region (m) of the synthetic rollouts: upright full cups in the analytic stand-in's own world (the
+#: planner's former default problem region; the task's problems are the world's, task.problems)
+SYNTHETIC_STARTS = {"x": (0.3, 0.55), "y": (0.05, 0.3)}
+
+
 def synthetic_deviation_dataset(n: int, rng: np.random.Generator, config: PlannerConfig | None = None,
                                 noise: float = 0.005) -> tuple[np.ndarray, np.ndarray]:
-    """(X [n, 8], d [n]) from random 6-action rollouts of the analytic model from bench starts.
+    """(X [n, 8], d [n]) from random 6-action rollouts of the analytic model from :data:`SYNTHETIC_STARTS`.
 
     Rollouts use the planner's :class:`ActionSampler`, so the features cover the states the
     planner visits; labels are :func:`plant_deviation` plus Gaussian noise, clipped at 0.
@@ -237,10 +242,9 @@ def synthetic_deviation_dataset(n: int, rng: np.random.Generator, config: Planne
     sampler = ActionSampler(config)
     model = AnalyticPouringModel()
     n_roll = math.ceil(n / config.max_actions)
-    p = config.problems
     s = np.zeros((n_roll, STATE_DIM))
-    s[:, 0] = rng.uniform(*p.start_x, n_roll)
-    s[:, 1] = rng.uniform(*p.start_y, n_roll)
+    s[:, 0] = rng.uniform(*SYNTHETIC_STARTS["x"], n_roll)
+    s[:, 1] = rng.uniform(*SYNTHETIC_STARTS["y"], n_roll)
     s[:, 3] = 1.0
     feats = []
     with torch.no_grad():

@@ -1,0 +1,238 @@
+"""Every key of the planner and experiment groups acts, every documented override arrives where it acts,
+and a key that cannot act is refused before any compute (naming the key and what is allowed).
+
+Composes the config as ``python -m active.run`` does (``active.run.compose_config``) and reads the objects
+a run plans and runs with (``active.run.run_settings``: the ExperimentConfig, the PlannerConfig every
+planning call gets, the planner processes). No simulation, no training.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from active.experiment import ExperimentConfig
+from active.loop import DERIVED_PLANNER_KEYS, NOT_RUN_SETTINGS, config_digest
+from active.run import compose_config, run_experiment, run_settings
+from active.rundir import accepted_digests, upgrade_config
+from planner import PlannerConfig
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIGS = REPO / "configs"
+PLANNER_YAML = yaml.safe_load((CONFIGS / "planner" / "default.yaml").read_text())
+EXPERIMENTS = sorted(p.stem for p in (CONFIGS / "experiment").glob("*.yaml"))
+
+#: a valid value other than the default for every planner-only key (a new key must be added here: shown to act)
+PLANNER_ALTERNATIVES = {
+    "state_low": [0.04, 0.02, 0.0, 0.0, 0.0], "state_high": [0.56, 0.37, 2.5, 1.0, 1.0], "p_move": 0.4,
+    "goal_bias": 0.1, "batch_min": 8, "batch_max": 128, "last_step_proposals": 16,
+    "distance_weights": [1.0, 2.0, 1.0, 1.0], "clip_to_bounds": False, "prune_dead_states": False,
+    "stuck_tilt": 0.1, "stuck_move": 0.01, "torch_threads": 2, "ompl_log_level": "warn",
+}
+#: for every derived planner key: an override of its source and the value the planner must get
+SOURCE_ALTERNATIVES = {
+    "move_x": ("world.skills.move.x=[0.12,0.5]", (0.12, 0.5)),
+    "move_y": ("world.skills.move.y=[0.07,0.3]", (0.07, 0.3)),
+    "pour_theta": ("world.skills.pour.theta=[0.0,2.0]", (0.0, 2.0)),
+    "pour_hold": ("world.skills.pour.hold=[0.0,0.8]", (0.0, 0.8)),
+    "max_actions": ("world.skills.max_actions=5", 5),
+    "spill_limit": ("world.problems.max_spill=0.03", 0.03),
+    "d_max": ("experiment.d_max=0.05", 0.05),
+    "n_candidates": ("experiment.candidates=3", 3),
+    "time_budget": ("experiment.planner_time_budget=5.0", 5.0),
+    "propagation_budget": ("experiment.planner_propagation_budget=1234", 1234),
+}
+#: a valid value other than quick's for every experiment key
+EXPERIMENT_ALTERNATIVES = {
+    "name": "other", "methods": ["random_plan"], "iterations": 3, "trajectories_per_iteration": 3, "refit_every": 3,
+    "candidates": 3, "test_problems": 3, "random_actions_length": 3, "d_max": 0.05, "beta_train": [-1.0, 0.5],
+    "beta_switch_iteration": 2, "beta_test": 1.5, "calibration_trajectories": 3, "planner_propagation_budget": 1234,
+    "planner_time_budget": 5.0, "known_obstacles": False, "refine_steps": 2, "refine_lr": 0.01, "plan_goal_tol": 0.03,
+}
+
+
+@pytest.fixture(autouse=True)
+def _no_geometry_check(monkeypatch):
+    """The world's geometry check (about a second of signed distances) is tested elsewhere; not needed here."""
+    import active.preflight
+
+    monkeypatch.setattr(active.preflight, "check_geometry", lambda world: None)
+
+
+def settings(overrides: list[str]):
+    """(ExperimentConfig, WorldConfig, PlannerConfig, planner processes) of ``python -m active.run <overrides>``."""
+    return run_settings(compose_config(overrides))
+
+
+def _override(key: str, value) -> str:
+    """``key=value`` in Hydra's override syntax."""
+    def fmt(v):
+        if isinstance(v, bool):
+            return str(v).lower()
+        if isinstance(v, (list, tuple)):
+            return "[" + ",".join(fmt(x) for x in v) + "]"
+        return str(v)
+
+    return f"{key}={fmt(value)}"
+
+
+# ------------------------------------------------------------------ every key acts
+def test_every_planner_key_is_tested_and_planner_only_keys_mirror_the_defaults():
+    keys = set(PLANNER_YAML) - {"workers"}
+    assert keys == set(PLANNER_ALTERNATIVES) | set(DERIVED_PLANNER_KEYS)
+    assert not keys & set(NOT_RUN_SETTINGS)
+    assert {f.name for f in dataclasses.fields(PlannerConfig)} == keys | set(NOT_RUN_SETTINGS)
+    for k, src in DERIVED_PLANNER_KEYS.items():  # the YAML interpolates exactly the source the check uses
+        assert PLANNER_YAML[k] == "${" + src + "}", k
+
+
+@pytest.mark.parametrize("key", sorted(PLANNER_ALTERNATIVES))
+def test_a_planner_only_key_reaches_the_runs_planner_config(key):
+    value = PLANNER_ALTERNATIVES[key]
+    default = getattr(settings([])[2], key)
+    pc = settings([_override(f"planner.{key}", value)])[2]
+    got = getattr(pc, key)
+    assert got != default
+    assert (list(got) if isinstance(got, tuple) else got) == value
+
+
+@pytest.mark.parametrize("key", sorted(DERIVED_PLANNER_KEYS))
+def test_a_derived_planner_key_follows_its_source_and_is_refused_on_the_planner_side(key):
+    override, want = SOURCE_ALTERNATIVES[key]
+    _, _, pc, _ = settings([override])
+    assert getattr(pc, key) == want
+    src = DERIVED_PLANNER_KEYS[key]
+    with pytest.raises(ValueError, match=rf"^planner\.{key} = .* differs from {re.escape(src)} = .*set {re.escape(src)}"):
+        settings([_override(f"planner.{key}", want)])
+
+
+@pytest.mark.parametrize("key", sorted(NOT_RUN_SETTINGS))
+def test_a_planner_field_that_is_no_run_setting_is_refused(key):
+    with pytest.raises(ValueError, match=rf"^planner\.{key} is not a setting of a run"):
+        settings([f"+planner.{key}=0.03"])
+
+
+def test_unknown_keys_are_refused_naming_the_key_and_the_allowed_ones():
+    with pytest.raises(ValueError, match=r"unknown planner key\(s\) \['planner.bogus'\]; allowed: \[.*'goal_bias'"):
+        settings(["+planner.bogus=1"])
+    with pytest.raises(ValueError, match=r"unknown experiment key\(s\) \['bogus'\]; known keys: \[.*'candidates'"):
+        settings(["+experiment.bogus=1"])
+    from hydra.errors import ConfigCompositionException
+
+    with pytest.raises(ConfigCompositionException, match=r"planner\.bogus"):  # without +: Hydra refuses it
+        compose_config(["planner.bogus=1"])
+
+
+def test_unknown_keys_fail_before_any_compute(tmp_path):
+    base = ["experiment=tiny", "wandb.mode=disabled", "progress=false", f"dynamics.cache_root={tmp_path / 'cache'}"]
+    for bad in ("+planner.bogus=1", "+planner.beta=1.0", "planner.n_candidates=7", "+experiment.bogus=1"):
+        with pytest.raises(ValueError):
+            run_experiment(compose_config(base + [bad]), tmp_path / "out")
+    assert not (tmp_path / "out").exists() and not (tmp_path / "cache").exists()
+
+
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_every_experiment_yaml_sets_every_key(name):
+    data = yaml.safe_load((CONFIGS / "experiment" / f"{name}.yaml").read_text())["experiment"]
+    assert set(data) == {f.name for f in dataclasses.fields(ExperimentConfig)}
+
+
+def test_experiment_defaults_are_the_quick_yaml():
+    data = yaml.safe_load((CONFIGS / "experiment" / "quick.yaml").read_text())["experiment"]
+    assert ExperimentConfig.from_mapping(data) == ExperimentConfig()
+    assert compose_config([])["experiment"]["name"] == "quick"
+
+
+@pytest.mark.parametrize("key", sorted(EXPERIMENT_ALTERNATIVES))
+def test_an_experiment_key_reaches_the_experiment_config(key):
+    value = EXPERIMENT_ALTERNATIVES[key]
+    exp = settings([_override(f"experiment.{key}", value)])[0]
+    got = getattr(exp, key)
+    assert (list(got) if isinstance(got, tuple) else got) == value
+    assert got != getattr(ExperimentConfig(), key)
+
+
+# ------------------------------------------------------------------ the documented overrides
+def test_documented_overrides_arrive():
+    """README's command table, configs/config.yaml, the experiment and planner YAML comments, BENCHMARKS.md."""
+    exp, _, pc, _ = settings(["experiment=paper", "method=active_balanced", "seed=2"])
+    assert (exp.name, exp.methods, exp.iterations, exp.candidates) == ("paper", ("active_balanced",), 20, 9)
+    assert (pc.n_candidates, pc.propagation_budget, pc.d_max) == (9, 20000, 0.07)
+    assert compose_config(["seed=2"])["seed"] == 2
+    assert settings(["experiment.refine_steps=4"])[0].refine_steps == 4
+    for e in EXPERIMENTS:  # README: the model without the known static geometry
+        assert settings([f"experiment={e}", "experiment.known_obstacles=false"])[0].known_obstacles is False
+    assert settings(["planner.workers=2"])[3] == 2 and settings(["planner.workers=1"])[3] == 1
+    assert settings(["planner.goal_bias=0.1"])[2].goal_bias == 0.1  # configs/planner/default.yaml
+    assert settings(["planner.stuck_move=0.01"])[2].stuck_move == 0.01  # README: known static geometry
+    assert settings(["experiment.plan_goal_tol=0.02"])[2].goal_tol == 0.02  # BENCHMARKS: ladder rungs
+    assert settings([])[2].goal_tol == 0.05  # null: the world's tolerance
+    assert settings(["experiment.planner_propagation_budget=20000"])[2].propagation_budget == 20000
+    exp, world, pc, _ = settings(["world=fine", "world.sim.arch=gpu", "experiment=paper", "method=active_balanced"])
+    assert world.sim["dx"] == 0.005 and world.sim["arch"] == "gpu" and exp.name == "paper"
+    assert (pc.n_candidates, pc.propagation_budget) == (9, 20000)
+    exp, _, pc, _ = settings(["experiment=tiny"])
+    assert (pc.n_candidates, pc.propagation_budget, pc.time_budget) == (2, 500, 30.0)
+
+
+def test_the_state_box_must_contain_the_action_ranges():
+    with pytest.raises(ValueError, match=r"move_y=\[0.06, 0.4\] reaches outside the state bounds of y"):
+        settings(["world.skills.move.y=[0.06,0.40]"])
+    assert settings(["world.skills.move.y=[0.06,0.40]", "planner.state_high=[0.55,0.40,2.4,1.0,1.0]"])[2].move_y == (0.06, 0.4)
+
+
+# ------------------------------------------------------------------ the problems
+def test_problems_are_the_worlds_and_bit_identical_to_before():
+    """The experiment's problems did not change when the sampler moved to task.problems (same draws)."""
+    from sim.problems import sample_problems as via_sim
+    from task import sample_problems
+
+    assert via_sim is sample_problems
+    cfg = compose_config([])
+    _, world, _, _ = run_settings(cfg)
+    a, b = sample_problems(world, 2, 123), sample_problems(cfg["world"], 2, np.random.default_rng(123))
+    for p, q in zip(a, b):
+        np.testing.assert_array_equal(p.start, q.start)
+        np.testing.assert_array_equal(p.plant_jitter, q.plant_jitter)
+        assert p.goal == q.goal
+    np.testing.assert_array_equal(a[0].start, [0.4555292608547401, 0.08968778338440009, 0.0, 1.0, 0.0])
+    np.testing.assert_array_equal(a[0].plant_jitter, [-0.004474242035638218, -0.005050051028821285, -0.03240940989149697])
+    assert a[0].goal == 0.7060472533278868
+    np.testing.assert_array_equal(a[1].start, [0.4892682997237879, 0.12978339160347913, 0.0, 1.0, 0.0])
+    assert a[1].goal == 0.4224823005343982 and a[0].world == "target"
+    with pytest.raises(ValueError, match="world = 'moon': allowed one of"):
+        sample_problems(world, 1, 0, world="moon")
+
+
+# ------------------------------------------------------------------ run directories from before
+#: the planner and experiment blocks ``experiment=tiny`` recorded before the planner's keys were derived
+OLD_TINY_PLANNER = {
+    "state_low": [0.05, 0.03, 0.0, 0.0, 0.0], "state_high": [0.55, 0.35, 2.4, 1.0, 1.0], "move_x": [0.05, 0.55],
+    "move_y": [0.03, 0.35], "pour_theta": [0.0, 2.4], "pour_hold": [0.0, 1.5], "p_move": 0.5, "max_actions": 6,
+    "goal_tol": 0.05, "spill_limit": 0.02, "beta": 2.0, "d_max": 0.07, "n_candidates": 9, "time_budget": 1.0,
+    "propagation_budget": 20000, "seed": 0, "goal_bias": 0.05, "batch_min": 16, "batch_max": 256,
+    "last_step_proposals": 32, "distance_weights": [1.0, 1.0, 1.0, 1.0], "clip_to_bounds": True,
+    "prune_dead_states": True, "stuck_tilt": 0.05, "stuck_move": 0.005, "torch_threads": 1, "ompl_log_level": "error",
+    "workers": "auto", "problems": {"start_x": [0.3, 0.55], "start_y": [0.05, 0.3], "goal": [0.3, 0.8]},
+}
+OLD_TINY_EXPERIMENT = {
+    "name": "tiny", "methods": ["active_balanced", "random_actions"], "iterations": 2, "trajectories_per_iteration": 2,
+    "refit_every": 2, "candidates": 2, "test_problems": 2, "random_actions_length": 2, "d_max": 0.07,
+    "beta_train": [-2.0, 1.0], "beta_switch_iteration": 1, "beta_test": 2.0, "calibration_trajectories": 2,
+    "planner_propagation_budget": 500, "plan_goal_tol": None,
+}
+
+
+def test_a_run_directory_recorded_before_the_derived_keys_still_resumes():
+    new = compose_config(["experiment=tiny"])
+    old = {**new, "planner": OLD_TINY_PLANNER, "experiment": OLD_TINY_EXPERIMENT}
+    assert config_digest(upgrade_config(old)) == config_digest(new)
+    assert config_digest(old) in accepted_digests(new, old)  # what its state.pt files carry
+    other = compose_config(["experiment=tiny", "experiment.candidates=3"])
+    assert config_digest(old) not in accepted_digests(other, old)
+    assert upgrade_config(new) == new
