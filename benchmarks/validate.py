@@ -4,6 +4,10 @@ and container leak checks. Each case is a function (used by the tests) and a sub
     python -m benchmarks.validate dam-break --out DIR     # DIR/dam_break.json + DIR/dam_break.png
     python -m benchmarks.validate rest --out DIR
     python -m benchmarks.validate leaks --out DIR
+
+Every case runs the liquid model of a world (``--world``, default ``configs/world/default.yaml``: its
+particles per cell, corrections, tension and viscosity) at the case's own grid and time step;
+``--world none`` runs the solver's library defaults (mpm88's J-fluid with the volume correction).
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ import time
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -32,6 +37,31 @@ MM_A = 0.05715  # m, Martin & Moyce column base width (2.25 in)
 #: rejecting a front that is qualitatively wrong (a 30% error is a front at the wrong speed).
 DAM_BREAK_TOLERANCE = 0.15
 
+#: SimConfig fields that make up the liquid model (not the scene, grid or time step of a case)
+PHYSICS_KEYS = ("ppc", "viscosity", "tension", "volume_correction", "volume_relax", "stretch_relax",
+                "boundary_density", "friction")
+
+
+def world_physics(world: str | Path | None = "default") -> dict[str, Any]:
+    """The liquid model of a world YAML (``default``: configs/world/default.yaml; None / ``none``: {})."""
+    if world is None or str(world) == "none":
+        return {}
+    from sim.world import DEFAULT_CONFIG, WorldConfig
+
+    cfg = WorldConfig.load(DEFAULT_CONFIG if str(world) == "default" else Path(world))
+    sim = cfg.sim_config(1)
+    return {k: getattr(sim, k) for k in PHYSICS_KEYS}
+
+
+def _sim_config(physics: Mapping[str, Any] | None, **case: Any) -> SimConfig:
+    """The case's grid and scene settings with a liquid model on top (max_particles scaled by ppc / 4)."""
+    physics = dict(physics or {})
+    unknown = sorted(set(physics) - set(PHYSICS_KEYS))
+    if unknown:
+        raise ValueError(f"physics keys {unknown}: allowed {list(PHYSICS_KEYS)}")
+    case["max_particles"] = int(case["max_particles"] * max(1.0, physics.get("ppc", 4) / 4))
+    return SimConfig(**case, **physics)
+
 
 def load_martin_moyce() -> np.ndarray:
     """(n, 2) array of (T, Z) laboratory points, n^2 = 2 column."""
@@ -46,13 +76,13 @@ def _atomic_json(path: Path, obj: dict) -> None:
 
 # ---------------------------------------------------------------------------------- dam break
 def run_dam_break(dx: float = 0.005, a: float = MM_A, sound_speed: float = 12.0, T_end: float = 3.4,
-                  sample_dt: float = 0.002, arch: str = "cpu") -> dict:
+                  sample_dt: float = 0.002, arch: str = "cpu", physics: Mapping[str, Any] | None = None) -> dict:
     """Release a water column of width a and height 2a at the left tank wall.
 
     front_x is the furthest water within 0.1 a of the floor, measured from the starting wall;
     column_height is the highest water within one cell of that wall."""
-    cfg = SimConfig(domain=(max(0.4, 6.0 * a), max(0.2, 3.0 * a)), dx=dx, dt=0.4 * dx / sound_speed,
-                    sound_speed=sound_speed, max_particles=int(1.2 * 2 * a * a * 4 / dx**2) + 16, arch=arch)
+    cfg = _sim_config(physics, domain=(max(0.4, 6.0 * a), max(0.2, 3.0 * a)), dx=dx, dt=0.4 * dx / sound_speed,
+                      sound_speed=sound_speed, max_particles=int(1.2 * 2 * a * a * 4 / dx**2) + 16, arch=arch)
     w = cfg.wall
     solver = MPMSolver(cfg)
     solver.reset([EnvSpec(water=[WaterBlock((w, w), (w + a, w + 2 * a))])])
@@ -132,10 +162,11 @@ def fraction_in_cup(solver: MPMSolver, cup: CupGeometry, tol: float) -> np.ndarr
     return counts[:, 0] / solver.particle_counts()
 
 
-def run_rest(duration: float = 2.0, dx: float = 0.01, cup: CupGeometry | None = None, arch: str = "cpu") -> dict:
+def run_rest(duration: float = 2.0, dx: float = 0.01, cup: CupGeometry | None = None, arch: str = "cpu",
+             physics: Mapping[str, Any] | None = None) -> dict:
     """Water in a cup standing on the tank floor for ``duration`` s."""
     cup = cup or CupGeometry()
-    cfg = SimConfig(dx=dx, dt=0.4 * dx / 12.0, max_particles=2048, arch=arch)
+    cfg = _sim_config(physics, dx=dx, dt=0.4 * dx / 12.0, max_particles=2048, arch=arch)
     solver = MPMSolver(cfg)
     pose = (0.3, cfg.wall + cup.wall, 0.0)
     solver.reset([cup_scene(cup, pose)])
@@ -167,7 +198,7 @@ def run_rest(duration: float = 2.0, dx: float = 0.01, cup: CupGeometry | None = 
 
 
 def run_leak(mode: str = "still", duration: float = 2.0, peak_speed: float = 0.3, dx: float = 0.01,
-             cup: CupGeometry | None = None, arch: str = "cpu") -> dict:
+             cup: CupGeometry | None = None, arch: str = "cpu", physics: Mapping[str, Any] | None = None) -> dict:
     """Fraction of water kept in the controlled cup, held still or carried at ``peak_speed``.
 
     'carried': a min-jerk carry right and up, then back, each leg at the given peak speed (the
@@ -175,7 +206,7 @@ def run_leak(mode: str = "still", duration: float = 2.0, peak_speed: float = 0.3
     if mode not in ("still", "carried"):
         raise ValueError(f"mode = {mode!r}: allowed 'still' or 'carried'")
     cup = cup or CupGeometry()
-    cfg = SimConfig(dx=dx, dt=0.4 * dx / 12.0, max_particles=2048, arch=arch)
+    cfg = _sim_config(physics, dx=dx, dt=0.4 * dx / 12.0, max_particles=2048, arch=arch)
     solver = MPMSolver(cfg)
     start = np.array([0.15, 0.12, 0.0])
     solver.reset([cup_scene(cup, tuple(start))])
@@ -212,30 +243,38 @@ def main(argv: list[str] | None = None) -> None:
     lk.add_argument("--out", type=Path, required=True)
     lk.add_argument("--peak-speed", type=float, default=0.3)
     lk.add_argument("--arch", default="cpu")
+    for sp in (d, r, lk):
+        sp.add_argument("--world", default="default",
+                        help="world YAML whose liquid model to run (default: configs/world/default.yaml; "
+                             "none: the solver's library defaults)")
     args = ap.parse_args(argv)
+    physics = world_physics(args.world)
+    print(f"liquid model: {physics or 'solver library defaults'}")
     args.out.mkdir(parents=True, exist_ok=True)
 
     if args.case == "dam-break":
         dxs = sorted(set(args.resolutions) | {args.dx}, reverse=True)
         runs = {}
         for dx in dxs:
-            runs[dx] = run_dam_break(dx=dx, arch=args.arch)
+            runs[dx] = run_dam_break(dx=dx, arch=args.arch, physics=physics)
             print(f"dx = {dx * 1000:6.2f} mm   mean |Z - Z_mm| / Z_mm = {dam_break_error(runs[dx]) * 100:5.1f} %"
                   f"   wall {runs[dx]['wall_seconds']:.1f} s")
         main_run = dict(runs[args.dx])
         main_run["mean_relative_error"] = dam_break_error(main_run)
         main_run["tolerance"] = DAM_BREAK_TOLERANCE
+        main_run["physics"] = physics
         main_run["resolution_study"] = [{"dx": dx, "mean_relative_error": dam_break_error(r)} for dx, r in runs.items()]
         _atomic_json(args.out / "dam_break.json", main_run)
         plot_dam_break([runs[dx] for dx in dxs], args.out / "dam_break.png")
         print(f"wrote {args.out / 'dam_break.json'} and {args.out / 'dam_break.png'}")
     elif args.case == "rest":
-        res = run_rest(arch=args.arch)
+        res = dict(run_rest(arch=args.arch, physics=physics), physics=physics)
         _atomic_json(args.out / "rest.json", res)
         print(json.dumps(res, indent=1))
     else:
-        res = {"still": run_leak("still", arch=args.arch),
-               "carried": run_leak("carried", peak_speed=args.peak_speed, arch=args.arch)}
+        res = {"still": run_leak("still", arch=args.arch, physics=physics),
+               "carried": run_leak("carried", peak_speed=args.peak_speed, arch=args.arch, physics=physics),
+               "physics": physics}
         _atomic_json(args.out / "leaks.json", res)
         print(json.dumps(res, indent=1))
 

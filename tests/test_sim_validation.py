@@ -8,7 +8,10 @@ import pytest
 
 from benchmarks import validate
 from benchmarks.validate import (DAM_BREAK_TOLERANCE, dam_break_error, load_martin_moyce, run_dam_break, run_leak,
-                                 run_rest)
+                                 run_rest, world_physics)
+
+#: the default world's liquid model (ppc 9, ghost wall mass, ...): the water the experiment runs
+WORLD = world_physics("default")
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "martin_moyce_1952_surge_front.csv"
 
@@ -44,16 +47,19 @@ def test_dam_break_error_metric_rejects_a_wrong_front():
 
 
 def test_dam_break_command_writes_json_and_png(tmp_path):
+    """The command runs the default world's liquid model (the test above: the solver's defaults)."""
     validate.main(["dam-break", "--out", str(tmp_path), "--dx", "0.01", "--resolutions", "0.01"])
     out = json.loads((tmp_path / "dam_break.json").read_text())
+    assert out["physics"] == WORLD and out["mean_relative_error"] < DAM_BREAK_TOLERANCE
     for key in ("t", "front_x", "column_height", "a", "g", "resolution_study"):
         assert key in out
     assert len(out["t"]) == len(out["front_x"]) == len(out["column_height"])
     assert (tmp_path / "dam_break.png").stat().st_size > 10_000
 
 
-def test_water_at_rest_stays_put_and_flat():
-    res = run_rest(duration=2.0)
+@pytest.mark.parametrize("physics", [None, WORLD], ids=["solver_defaults", "default_world"])
+def test_water_at_rest_stays_put_and_flat(physics):
+    res = run_rest(duration=2.0, physics=physics)
     dx = res["dx"]
     assert res["particles_end"] == res["particles_start"] and not res["nan"]
     assert res["fraction_in_cup"] == 1.0
@@ -64,12 +70,12 @@ def test_water_at_rest_stays_put_and_flat():
 
 
 def test_cup_held_still_keeps_water():
-    res = run_leak("still", duration=2.0)
+    res = run_leak("still", duration=2.0, physics=WORLD)
     assert res["fraction_kept"] > 0.99 and not res["unstable"]
 
 
 def test_cup_carried_at_fastest_move_speed_keeps_water():
-    res = run_leak("carried", peak_speed=0.3)
+    res = run_leak("carried", peak_speed=0.3, physics=WORLD)
     assert res["fraction_kept"] > 0.98 and not res["unstable"]
 
 
