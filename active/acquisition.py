@@ -7,8 +7,10 @@ gamma^t and reduces over steps with a max. BoTorch maximises, so a function whos
 minimised (the paper's alpha) returns -alpha.
 
 To plug in your own: subclass :class:`TrajectoryAcquisition`, implement ``step_score`` and point the
-Hydra config at it (``acquisition._target_=my_pkg.MyAcquisition``); the loop passes ``model``,
-``gamma`` and the keyword arguments of the config.
+Hydra config at it (``acquisition._target_=my_pkg.MyAcquisition``). The config group
+``configs/acquisition/`` holds the built-in ones as ``_partial_: true`` specs (``acquisition=lcb`` ...);
+the loop instantiates the partial and completes it with ``model`` and, where the class accepts them,
+the method's keyword arguments (``c``) and ``d_max``.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from __future__ import annotations
 import torch
 from botorch.acquisition import AcquisitionFunction
 from botorch.models.model import Model
+from botorch.utils.transforms import t_batch_mode_transform
 from torch import Tensor
 
 
@@ -50,7 +53,9 @@ class TrajectoryAcquisition(AcquisitionFunction):
         discount = self.gamma ** torch.arange(T, dtype=X.dtype, device=X.device)
         return (discount * self.step_score(mean, std)).amax(dim=-1)
 
+    @t_batch_mode_transform()
     def forward(self, X: Tensor) -> Tensor:
+        """``X``: batch x T x d (a 2-D ``T x d`` is one trajectory) -> (batch,), maximised."""
         score = self.trajectory_score(X)
         return -score if self.minimise else score
 
@@ -61,23 +66,33 @@ class DiscountedMaxUCB(TrajectoryAcquisition):
 
     Note on the sign of c: minimising Eq. 1 with c < 0 *lowers* alpha for uncertain steps (it rewards
     uncertainty), while the paper's text calls c = -0.1 "cautious" and says a higher c gives a higher
-    exploration bonus, which is the reading of the LCB form mu - c sigma. ``form="eq1"`` (default,
-    as the design brief specifies) uses mu + c sigma; ``form="lcb"`` uses mu - c sigma.
+    exploration bonus, which is the reading of the LCB form mu - c sigma: :class:`DiscountedMaxLCB`
+    (``acquisition=lcb``). This class (the default, as the design brief specifies) uses mu + c sigma.
     """
 
     minimise = True
-    FORMS = ("eq1", "lcb")
 
     def __init__(self, model: Model, c: float = 0.1, gamma: float = 1.0, observation_noise: bool = True,
-                 form: str = "eq1") -> None:
+                 **kwargs) -> None:
+        if "form" in kwargs:  # the former string switch (acquisition.form=eq1|lcb)
+            raise ValueError(f"acquisition.form = {kwargs['form']!r} was removed: the paper's Eq. 1 is "
+                             f"acquisition=alpha (active.acquisition.DiscountedMaxUCB, the default), its LCB "
+                             f"reading acquisition=lcb (active.acquisition.DiscountedMaxLCB)")
+        if kwargs:
+            raise TypeError(f"{type(self).__name__}: unexpected keyword argument(s) {sorted(kwargs)}")
         super().__init__(model, gamma, observation_noise)
-        if form not in self.FORMS:
-            raise ValueError(f"acquisition.form = {form!r}: allowed one of {self.FORMS}")
         self.c = float(c)
-        self.form = form
 
     def step_score(self, mean: Tensor, std: Tensor) -> Tensor:
-        return mean + self.c * std if self.form == "eq1" else mean - self.c * std
+        return mean + self.c * std
+
+
+class DiscountedMaxLCB(DiscountedMaxUCB):
+    """The LCB reading of the paper's alpha: max_t gamma^t (mu_t - c sigma_t), minimised (a higher c
+    rewards uncertain steps more: the paper's naming of c = -0.1 as "cautious")."""
+
+    def step_score(self, mean: Tensor, std: Tensor) -> Tensor:
+        return mean - self.c * std
 
 
 class TrajectoryStraddle(TrajectoryAcquisition):
@@ -104,4 +119,6 @@ class TrajectoryVariance(TrajectoryAcquisition):
         return std**2
 
 
-ACQUISITIONS = {"ucb": DiscountedMaxUCB, "straddle": TrajectoryStraddle, "variance": TrajectoryVariance}
+#: the built-in acquisitions by their name in configs/acquisition/
+ACQUISITIONS = {"alpha": DiscountedMaxUCB, "lcb": DiscountedMaxLCB, "straddle": TrajectoryStraddle,
+                "variance": TrajectoryVariance}

@@ -38,7 +38,7 @@ from task.problems import Problem, sample_problems
 
 from .experiment import ExperimentConfig
 from .io import load_torch, save_torch, write_csv
-from .methods import METHODS, choose
+from .methods import RandomPlan, build_method
 from .tracking import Tracker
 
 log = logging.getLogger(__name__)
@@ -71,10 +71,25 @@ def comparable_config(cfg: Mapping[str, Any]) -> dict:
     for k in ("wandb", "progress", "method"):
         c.pop(k, None)
     c.get("planner", {}).pop("workers", None)  # where plans are computed, not what they are
+    if isinstance(c.get("acquisition"), dict):
+        c["acquisition"] = legacy_acquisition(c["acquisition"])
     for k, off in NEUTRAL_EXPERIMENT_SETTINGS.items():  # a setting added later, at its "off" value
         if k in c.get("experiment", {}) and c["experiment"][k] == off:
             c["experiment"].pop(k)
     return c
+
+
+def legacy_acquisition(acq: Mapping[str, Any]) -> dict:
+    """The acquisition spec as digests saw it before ``configs/acquisition/`` (the same acquisition,
+    the same digest, so runs written then still resume): no ``_partial_`` (every spec is one), and
+    the paper's alpha with ``form`` eq1 (DiscountedMaxUCB) or lcb (DiscountedMaxLCB)."""
+    a = dict(acq)
+    a.pop("_partial_", None)
+    if a.get("_target_") == "active.acquisition.DiscountedMaxLCB":
+        a["_target_"], a["form"] = "active.acquisition.DiscountedMaxUCB", "lcb"
+    elif a.get("_target_") == "active.acquisition.DiscountedMaxUCB":
+        a.setdefault("form", "eq1")
+    return a
 
 
 #: experiment keys added after runs existed, with the value that changes nothing: left out of the digest
@@ -243,6 +258,7 @@ class MethodRun:
 
     def __init__(self, ctx: Context, method: str, make_mde, make_acquisition, tracker: Tracker):
         self.ctx, self.method = ctx, method
+        self.spec = build_method(method)  # configs/methods.yaml
         self.dir = ctx.out / method
         self.dir.mkdir(parents=True, exist_ok=True)
         self.make_mde, self.make_acq, self.tracker = make_mde, make_acquisition, tracker
@@ -358,7 +374,7 @@ class MethodRun:
     def _plan_chunk(self, chunk: list[Problem], mde: Any, it: int, c0: int, beta: float) -> list:
         """Candidate sets of the chunk's problems (problem k = c0 + j), planned in one pool call."""
         ctx, exp = self.ctx, self.ctx.exp
-        if self.method == "random_actions":  # no planning
+        if not self.spec.plans:  # e.g. random_actions
             return [None] * len(chunk)
         reqs = [PlanRequest("candidates", prob.start, prob.goal, n=exp.candidates, beta=beta, d_max=exp.d_max,
                             seed=derive_seed(ctx.seed, self.method, "plan", it, c0 + j))
@@ -372,13 +388,13 @@ class MethodRun:
         def random_actions() -> np.ndarray:
             return self.sampler.sample(exp.random_actions_length, rng)
 
-        if self.method == "random_actions":
-            return choose(self.method, [], rng, random_actions)
+        if not self.spec.plans:
+            return self.spec.choose([], rng, random_actions)
         trajs = list(cands.candidates)
-        if METHODS[self.method] is not None and not self.mde.is_fitted:
+        if self.spec.acquisition is not None and not self.mde.is_fitted:
             # no data yet: every candidate has the same prior score; pick one at random (seeded)
-            return choose("random_plan", trajs, rng, random_actions)
-        return choose(self.method, trajs, rng, random_actions, lambda c: self.make_acq(self.mde, c))
+            return RandomPlan().choose(trajs, rng, random_actions)
+        return self.spec.choose(trajs, rng, random_actions, lambda kw: self.make_acq(self.mde, kw))
 
     def _test(self, mde: Any, it: int) -> tuple[float, float]:
         ctx, exp = self.ctx, self.ctx.exp
@@ -416,34 +432,37 @@ class MethodRun:
 
 
 def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):
-    """Build the configured acquisition for an MDE and the method's c (passed only if accepted)."""
-    from hydra.utils import get_class
+    """Build the configured acquisition (``configs/acquisition/``, a ``_partial_`` spec instantiated with
+    ``hydra.utils.instantiate``) for an MDE and a method's keyword arguments (``c``; each passed only
+    if the class accepts it, as is ``d_max`` = experiment.d_max unless the spec sets it)."""
+    from hydra.utils import get_class, instantiate
 
     from .acquisition import _check_gamma
 
     cfg = dict(acq_cfg)
     if "_target_" not in cfg:
         raise ValueError("acquisition._target_ is missing: e.g. active.acquisition.DiscountedMaxUCB")
-    target = cfg.pop("_target_")
+    if "form" in cfg:
+        raise ValueError(f"acquisition.form = {cfg['form']!r} was removed: the paper's Eq. 1 is acquisition=alpha "
+                         f"(the default), its LCB reading acquisition=lcb (active.acquisition.DiscountedMaxLCB)")
     try:
-        cls = get_class(target)
+        cls = get_class(cfg["_target_"])
     except Exception as e:
         from .acquisition import ACQUISITIONS
 
-        raise ValueError(f"acquisition._target_ = {target!r} cannot be imported ({e}); built in: "
+        raise ValueError(f"acquisition._target_ = {cfg['_target_']!r} cannot be imported ({e}); built in: "
                          f"{sorted(c.__module__ + '.' + c.__name__ for c in ACQUISITIONS.values())}") from None
     if "gamma" in cfg:
         _check_gamma(cfg["gamma"])
+    cfg["_partial_"] = True  # a spec without it (a config written before the group existed) is still a partial
+    partial = instantiate(cfg, _convert_="all")
     params = inspect.signature(cls.__init__).parameters
 
-    def make(mde: Any, c: float | None):
-        kw = dict(cfg)
-        if "c" in params and c is not None:
-            kw["c"] = c
-        if "d_max" in params and "d_max" not in kw:
+    def make(mde: Any, method_kwargs: Mapping[str, Any] | None = None):
+        kw = {k: v for k, v in dict(method_kwargs or {}).items() if k in params}
+        if "d_max" in params and "d_max" not in partial.keywords:
             kw["d_max"] = exp.d_max
-        model = getattr(mde, "model", mde)
-        return cls(model=model, **kw)
+        return partial(model=getattr(mde, "model", mde), **kw)
 
     return make
 

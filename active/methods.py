@@ -3,34 +3,26 @@
 * ``random_actions``: a fixed number of actions from the planner's action sampler (no planning);
 * ``random_plan``: a uniformly random candidate among the planner's candidates that reach the goal;
 * ``active_cautious`` / ``active_mean`` / ``active_balanced``: the candidate that maximises the
-  acquisition function (the paper's alpha with c = -0.1 / 0 / 0.1).
+  configured acquisition function (by default the paper's alpha with c = -0.1 / 0 / 0.1).
 
-If the planner finds no candidate, a method falls back to random actions and the trajectory is
-marked ``fallback`` (recorded in categories.csv), so every iteration still collects data.
+The methods are specs in ``configs/methods.yaml`` (name -> ``_target_`` and its arguments), built with
+``hydra.utils.instantiate``: a new method is a YAML entry (and, for a new choice rule, a subclass of
+:class:`Method`). If the planner finds no candidate, a method falls back to random actions and the
+trajectory is marked ``fallback`` (recorded in categories.csv), so every iteration still collects data.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import torch
 
-#: method name -> c of the paper's acquisition (None: the method does not use an acquisition)
-METHODS: dict[str, float | None] = {
-    "random_actions": None,
-    "random_plan": None,
-    "active_cautious": -0.1,
-    "active_mean": 0.0,
-    "active_balanced": 0.1,
-}
-
-
-def check_method(name: str) -> str:
-    if name not in METHODS:
-        raise ValueError(f"method = {name!r}: allowed one of {sorted(METHODS)}")
-    return name
+#: the registry of methods: name -> instantiable spec
+METHODS_FILE = Path(__file__).resolve().parents[1] / "configs" / "methods.yaml"
 
 
 @dataclass
@@ -42,23 +34,98 @@ class Choice:
     chosen: int | None = None
 
 
-def choose(method: str, candidates: list, rng: np.random.Generator, random_actions: Callable[[], np.ndarray],
-           make_acquisition: Callable[[float], Any] | None = None) -> Choice:
-    """Pick the trajectory to execute from the planner's candidates (each has ``.features`` [T, d]
-    and ``.actions`` [T, 3])."""
-    check_method(method)
-    if method == "random_actions":
+class Method:
+    """How a training trajectory is chosen. ``plans``: whether the planner's candidates are needed;
+    ``acquisition``: keyword arguments for the acquisition (None: the method uses none)."""
+
+    plans: bool = True
+    acquisition: dict[str, Any] | None = None
+
+    def choose(self, candidates: list, rng: np.random.Generator, random_actions: Callable[[], np.ndarray],
+               make_acquisition: Callable[[Mapping[str, Any]], Any] | None = None) -> Choice:
+        raise NotImplementedError  # pragma: no cover - abstract
+
+
+class RandomActions(Method):
+    plans = False
+
+    def choose(self, candidates, rng, random_actions, make_acquisition=None) -> Choice:
         return Choice(random_actions(), "random_actions", 0)
-    if not candidates:
-        return Choice(random_actions(), "fallback", 0)
-    if method == "random_plan":
+
+
+class RandomPlan(Method):
+    def choose(self, candidates, rng, random_actions, make_acquisition=None) -> Choice:
+        if not candidates:
+            return Choice(random_actions(), "fallback", 0)
         k = int(rng.integers(len(candidates)))
         return Choice(np.asarray(candidates[k].actions), "plan", len(candidates), chosen=k)
-    acq = make_acquisition(METHODS[method])
-    scores = []
-    with torch.no_grad():
-        for cand in candidates:  # candidates differ in length: one q-batch each
-            X = torch.as_tensor(np.asarray(cand.features), dtype=torch.float64).unsqueeze(0)
-            scores.append(float(acq(X).item()))
-    k = int(np.argmax(scores))  # BoTorch convention: acquisitions are maximised
-    return Choice(np.asarray(candidates[k].actions), "plan", len(candidates), scores=scores, chosen=k)
+
+
+class ActiveChoice(Method):
+    """The candidate that maximises the acquisition (BoTorch convention), each candidate one q-batch."""
+
+    def __init__(self, acquisition: Mapping[str, Any] | None = None) -> None:
+        self.acquisition = dict(acquisition or {})
+
+    def choose(self, candidates, rng, random_actions, make_acquisition=None) -> Choice:
+        if not candidates:
+            return Choice(random_actions(), "fallback", 0)
+        acq = make_acquisition(self.acquisition)
+        scores = []
+        with torch.no_grad():
+            for cand in candidates:  # candidates differ in length: one q-batch each
+                X = torch.as_tensor(np.asarray(cand.features), dtype=torch.float64).unsqueeze(0)
+                scores.append(float(acq(X).item()))
+        k = int(np.argmax(scores))  # BoTorch convention: acquisitions are maximised
+        return Choice(np.asarray(candidates[k].actions), "plan", len(candidates), scores=scores, chosen=k)
+
+
+@lru_cache(maxsize=1)
+def method_specs() -> dict[str, dict]:
+    """name -> spec, as ``configs/methods.yaml`` gives them."""
+    from omegaconf import OmegaConf
+
+    specs = OmegaConf.to_container(OmegaConf.load(METHODS_FILE), resolve=True)
+    if not isinstance(specs, dict) or not all(isinstance(v, dict) and "_target_" in v for v in specs.values()):
+        raise ValueError(f"{METHODS_FILE}: expected a mapping name -> {{_target_: ..., ...}}")
+    return specs
+
+
+class _Names(Mapping):
+    """The method names (a read-only view of the registry, for membership tests and messages)."""
+
+    def __getitem__(self, name: str) -> dict:
+        return method_specs()[name]
+
+    def __iter__(self):
+        return iter(method_specs())
+
+    def __len__(self) -> int:
+        return len(method_specs())
+
+
+METHODS: Mapping[str, dict] = _Names()
+
+
+def check_method(name: str) -> str:
+    if name not in METHODS:
+        raise ValueError(f"method = {name!r}: allowed one of {sorted(METHODS)} (configs/methods.yaml)")
+    return name
+
+
+def build_method(name: str) -> Method:
+    """The method ``name`` of ``configs/methods.yaml``, instantiated."""
+    from hydra.utils import instantiate
+
+    method = instantiate(METHODS[check_method(name)], _convert_="all")
+    if not isinstance(method, Method):
+        raise ValueError(f"method {name!r}: {type(method).__name__} is not an active.methods.Method")
+    return method
+
+
+def choose(method: str | Method, candidates: list, rng: np.random.Generator, random_actions: Callable[[], np.ndarray],
+           make_acquisition: Callable[[Mapping[str, Any]], Any] | None = None) -> Choice:
+    """Pick the trajectory to execute from the planner's candidates (each has ``.features`` [T, d]
+    and ``.actions`` [T, 3])."""
+    m = build_method(method) if isinstance(method, str) else method
+    return m.choose(candidates, rng, random_actions, make_acquisition)

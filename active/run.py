@@ -46,6 +46,7 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
 
     from .io import write_json
     from .loop import Context, MethodRun, acquisition_factory, derive_seed, make_calibration_set
+    from .methods import build_method
     from .preflight import check_dynamics, check_seed, check_writable
     from .report import report
     from .rundir import check_run_directory, clean_leftovers, load_calibration, save_calibration
@@ -60,6 +61,8 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     progress = bool(cfg.get("progress", True))
     exp, world, planner_cfg, workers = run_settings(cfg)
     make_acq = acquisition_factory(cfg["acquisition"], exp)
+    for m in exp.methods:  # configs/methods.yaml: every spec instantiates before any compute
+        build_method(m)
     mde_cfg = dict(cfg["mde"])
 
     def make_mde():

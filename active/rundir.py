@@ -37,6 +37,10 @@ def legacy_config_digest(cfg: Mapping[str, Any]) -> str:
         c.get("experiment", {}).pop(k, None)
     for k in ("wandb", "progress", "method"):
         c.pop(k, None)
+    if isinstance(c.get("acquisition"), dict):
+        from .loop import legacy_acquisition
+
+        c["acquisition"] = legacy_acquisition(c["acquisition"])
     return hashlib.sha256(json.dumps(c, sort_keys=True).encode()).hexdigest()[:16]
 
 

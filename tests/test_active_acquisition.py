@@ -7,7 +7,7 @@ from botorch.models.model import Model
 from botorch.posteriors.gpytorch import GPyTorchPosterior
 from gpytorch.distributions import MultivariateNormal
 
-from active.acquisition import DiscountedMaxUCB, TrajectoryStraddle, TrajectoryVariance
+from active.acquisition import DiscountedMaxLCB, DiscountedMaxUCB, TrajectoryStraddle, TrajectoryVariance
 
 
 class KnownPosterior(Model):
@@ -53,11 +53,20 @@ def test_choice_rule_depends_on_c():
     assert pick(c=0.0) == 0  # 0.030 < 0.035
     assert pick(c=0.1) == 0  # 0.030 < 0.055
     assert pick(c=-0.1) == 1  # 0.015 < 0.030: Eq. 1 with c < 0 rewards uncertainty
-    # LCB form, mu - c sigma: the paper's naming (higher c, more exploration)
-    assert pick(c=-0.1, form="lcb") == 0
-    assert pick(c=0.1, form="lcb") == 1
-    with pytest.raises(ValueError, match="acquisition.form"):
-        DiscountedMaxUCB(model, form="ucb")
+    # LCB reading, mu - c sigma (a subclass): the paper's naming (higher c, more exploration)
+    pick_lcb = lambda **kw: DiscountedMaxLCB(model, **kw)(cands).argmax().item()  # noqa: E731
+    assert pick_lcb(c=-0.1) == 0
+    assert pick_lcb(c=0.1) == 1
+    # the former string switch is refused with where it went
+    with pytest.raises(ValueError, match=r"acquisition.form = 'lcb' was removed.*acquisition=lcb"):
+        DiscountedMaxUCB(model, form="lcb")
+
+
+def test_a_single_trajectory_is_a_batch_of_one():
+    """BoTorch's t-batch convention (t_batch_mode_transform): T x d is one trajectory, batch x T x d many."""
+    acq = DiscountedMaxUCB(KnownPosterior(), c=0.1, gamma=0.9)
+    assert acq(A[0]).shape == (1,) and acq(A[0]).item() == pytest.approx(acq(A).item())
+    assert acq(torch.cat([A, B])).shape == (2,)
 
 
 def test_straddle_and_variance_by_hand():
@@ -92,6 +101,57 @@ def test_user_acquisition_plugs_in_by_target(tmp_path, monkeypatch):
         "    def step_score(self, mean, std):\n"
         "        return std\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    make = acquisition_factory({"_target_": "my_acq.WorstStepStd", "gamma": 1.0}, ExperimentConfig())
-    acq = make(KnownPosterior(), 0.1)
+    from active.methods import build_method
+    from active.run import compose_config
+
+    # README: python -m active.run acquisition._target_=my_acq.WorstStepStd method=active_balanced
+    cfg = compose_config(["acquisition._target_=my_acq.WorstStepStd", "method=active_balanced"])
+    make = acquisition_factory(cfg["acquisition"], ExperimentConfig())
+    acq = make(KnownPosterior(), build_method("active_balanced").acquisition)  # c = 0.1: not accepted, not passed
+    assert type(acq).__name__ == "WorstStepStd"
     assert acq(torch.cat([A, B])).tolist() == pytest.approx([-0.05, -0.1])  # -max_t sigma_t
+
+
+@pytest.mark.parametrize("group,cls", [("alpha", DiscountedMaxUCB), ("lcb", DiscountedMaxLCB),
+                                       ("straddle", TrajectoryStraddle), ("variance", TrajectoryVariance)])
+def test_acquisition_group_builds_each_option_with_the_methods_c(group, cls):
+    """configs/acquisition/<group>.yaml is a _partial_ spec; the loop completes it with the model, the
+    method's c (where accepted) and d_max = experiment.d_max (where accepted)."""
+    from active.experiment import ExperimentConfig
+    from active.loop import acquisition_factory
+    from active.methods import build_method
+    from active.run import compose_config
+
+    cfg = compose_config([f"acquisition={group}"])
+    assert cfg["acquisition"]["_partial_"] is True
+    make = acquisition_factory(cfg["acquisition"], ExperimentConfig(d_max=0.05))
+    acq = make(KnownPosterior(), build_method("active_cautious").acquisition)
+    assert type(acq) is cls
+    if hasattr(acq, "c"):
+        assert acq.c == -0.1
+    if hasattr(acq, "d_max"):
+        assert acq.d_max == 0.05
+
+
+def test_default_acquisition_is_the_papers_alpha_and_methods_carry_c():
+    from active.methods import METHODS, ActiveChoice, RandomActions, RandomPlan, build_method
+    from active.run import compose_config
+
+    assert compose_config([])["acquisition"] == {"_target_": "active.acquisition.DiscountedMaxUCB", "_partial_": True,
+                                                 "gamma": 1.0}
+    assert sorted(METHODS) == ["active_balanced", "active_cautious", "active_mean", "random_actions", "random_plan"]
+    cs = {m: build_method(m).acquisition for m in METHODS}
+    assert cs == {"random_actions": None, "random_plan": None, "active_cautious": {"c": -0.1},
+                  "active_mean": {"c": 0.0}, "active_balanced": {"c": 0.1}}
+    assert isinstance(build_method("random_actions"), RandomActions) and not build_method("random_actions").plans
+    assert isinstance(build_method("random_plan"), RandomPlan)
+    assert isinstance(build_method("active_mean"), ActiveChoice)
+
+
+def test_old_form_key_is_refused_naming_the_replacement():
+    from active.experiment import ExperimentConfig
+    from active.loop import acquisition_factory
+
+    with pytest.raises(ValueError, match=r"acquisition.form = 'lcb' was removed.*acquisition=lcb"):
+        acquisition_factory({"_target_": "active.acquisition.DiscountedMaxUCB", "gamma": 1.0, "form": "lcb"},
+                            ExperimentConfig())

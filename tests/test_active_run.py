@@ -117,6 +117,7 @@ def test_planner_workers_do_not_change_results(cache, straight_run, tmp_path):
     ("experiment.d_max=0", r"experiment.d_max = 0.*allowed > 0"),
     ("acquisition.gamma=1.5", r"gamma = 1.5: allowed \(0, 1\]"),
     ("acquisition._target_=nowhere.Acq", "cannot be imported"),
+    ("+acquisition.form=lcb", r"acquisition.form = 'lcb' was removed"),
     ("wandb.mode=loud", "wandb.mode"),
     ("seed=-1", r"^seed = -1: allowed an integer in \[0, 4294967295\]$"),
     ("world.sim.dx=0.05", r"world.sim.dx = 0.05: too coarse for the geometry.*Allowed: 0 < dx <= 0.01 m"),

@@ -178,6 +178,29 @@ def test_documented_overrides_arrive():
     assert (pc.n_candidates, pc.propagation_budget) == (9, 20000)
     exp, _, pc, _ = settings(["experiment=tiny"])
     assert (pc.n_candidates, pc.propagation_budget, pc.time_budget) == (2, 500, 30.0)
+    # README: acquisitions are a config group; your own by _target_ (configs/acquisition/, configs/methods.yaml)
+    for group in ("alpha", "lcb", "straddle", "variance"):
+        assert compose_config([f"acquisition={group}"])["acquisition"]["_partial_"] is True
+    assert compose_config(["acquisition=lcb"])["acquisition"]["_target_"] == "active.acquisition.DiscountedMaxLCB"
+    cfg = compose_config(["acquisition._target_=my_acq.WorstStepStd", "method=active_balanced"])
+    assert cfg["acquisition"]["_target_"] == "my_acq.WorstStepStd" and cfg["method"] == "active_balanced"
+    assert compose_config(["acquisition.gamma=0.9"])["acquisition"]["gamma"] == 0.9
+    for m in ("random_actions", "random_plan", "active_cautious", "active_mean", "active_balanced"):
+        assert settings([f"method={m}"])[0].methods == (m,)
+
+
+def test_the_acquisition_group_keeps_the_digests_of_runs_written_before_it():
+    """A run directory written with `acquisition: {_target_: DiscountedMaxUCB, gamma, form: eq1|lcb}` still
+    resumes: the same acquisition has the same digest (active.loop.legacy_acquisition)."""
+    from active.rundir import legacy_config_digest
+
+    new = compose_config(["experiment=tiny"])
+    old = {**new, "acquisition": {"_target_": "active.acquisition.DiscountedMaxUCB", "gamma": 1.0, "form": "eq1"}}
+    assert config_digest(new) == config_digest(old) and legacy_config_digest(new) == legacy_config_digest(old)
+    lcb = compose_config(["experiment=tiny", "acquisition=lcb"])
+    old_lcb = {**old, "acquisition": {**old["acquisition"], "form": "lcb"}}
+    assert config_digest(lcb) == config_digest(old_lcb) != config_digest(new)
+    assert config_digest(compose_config(["experiment=tiny", "acquisition=variance"])) != config_digest(new)
 
 
 def test_the_state_box_must_contain_the_action_ranges():
