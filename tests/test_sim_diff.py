@@ -239,6 +239,7 @@ def test_forward_agrees_with_production_on_partial_pours(cfg):
     assert np.all(np.abs(diff - prod) <= 0.05), (diff, prod)
 
 
+@pytest.mark.slow  # its own adjoint compile (about 40 s); ghost mass is also in every default-world test above
 def test_viscosity_stretch_relaxation_and_boundary_density_act_in_the_differentiable_solver(cfg, dp):
     """The shared physics options reach the f64 solver: a viscous world with stretch relaxation and
     ghost wall mass pours differently from the default one, and its gradients are finite."""
