@@ -7,6 +7,7 @@ import pytest
 from active.ladder import RUNGS, main, table
 
 
+@pytest.mark.slow  # compiles its own kernels: about 30-70 s in a fresh clone (CI time)
 def test_tiny_ladder_writes_every_rung(tmp_path, capsys):
     cache = tmp_path / "cache"
     overrides = ["experiment=tiny", "wandb.mode=disabled", "progress=false", f"dynamics.cache_root={cache}",

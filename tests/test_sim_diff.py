@@ -120,6 +120,7 @@ def test_forward_is_deterministic(dp):
     assert np.array_equal(a.spill_soft, b.spill_soft) and np.array_equal(a.in_ctrl, b.in_ctrl)
 
 
+@pytest.mark.slow  # compiles its own kernels: about 30-70 s in a fresh clone (CI time)
 def test_checkpointed_backward_equals_full_backward(cfg, dp):
     full = DifferentiablePour(cfg, 2, max_horizon=HORIZON, soft_width=SOFT, checkpoint_every=10**6)
     try:

@@ -61,11 +61,13 @@ def _slosh_energy(**physics) -> float:
     return e
 
 
+@pytest.mark.slow  # compiles its own kernels: about 30-70 s in a fresh clone (CI time)
 def test_viscosity_damps_sloshing():
     inviscid, viscous = _slosh_energy(), _slosh_energy(viscosity=10.0)
     assert viscous < 0.5 * inviscid, (viscous, inviscid)
 
 
+@pytest.mark.slow  # compiles its own kernels: about 30-70 s in a fresh clone (CI time)
 def test_stretch_relaxation_removes_stored_stretch():
     """Water left stretched (J = 1.2, negative pressure) in a cup at rest: tension pulls it back by
     itself, but what stretch remains after 0.1 s (mean of max(J - 1, 0)) is less than half with a
@@ -264,6 +266,7 @@ def test_unstable_environment_is_flagged_and_reported(caplog):
     solver.close()
 
 
+@pytest.mark.slow  # compiles its own kernels: about 30-70 s in a fresh clone (CI time)
 def test_three_dimensional_tank_runs():
     """Kernels are dimension-generic: a 3D water block in a tank keeps its particles and stays finite."""
     cfg = SimConfig(dim=3, domain=(0.2, 0.2, 0.2), dx=0.02, dt=5e-4, ppc=8, max_particles=2048)
