@@ -323,11 +323,24 @@ def _digest(obj: Any) -> str:
 
 
 def data_hash(cfg: DynamicsConfig, world_cfg: Any = None) -> str:
-    """Identity of a dataset: generator fields (without the world path) + world content + format."""
+    """Identity of a source-world dataset: generator fields (without the world path) + world content
+    without the plant + format.
+
+    The source world has no plant (``WorldConfig.obstacle_bodies``), so a change of the plant (the
+    target world's deviation) leaves the source data, its cache and the shipped file valid. Anything
+    that holds target-world data keys on :func:`plant_dict` as well (``dynamics.evaluate``).
+    """
     d = _plain(cfg.data)
     d.pop("world")
-    return _digest({"format": DATA_FORMAT_VERSION, "data": d, "world": world_dict(cfg.data, world_cfg),
+    world = world_dict(cfg.data, world_cfg)
+    world.pop("plant")
+    return _digest({"format": DATA_FORMAT_VERSION, "data": d, "world": world,
                     "solver": solver_dict(cfg.data, world_cfg)})
+
+
+def plant_dict(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
+    """The plant of that world (the part of the world :func:`data_hash` leaves out)."""
+    return world_dict(data, world_cfg)["plant"]
 
 
 def model_hash(cfg: DynamicsConfig, dhash: str | None = None, world_cfg: Any = None) -> str:

@@ -29,7 +29,7 @@ import numpy as np
 
 import safeio
 
-from .config import DynamicsConfig, _digest, _plain, data_hash
+from .config import DynamicsConfig, _digest, _plain, data_hash, plant_dict
 from .data import CLEARANCE_CAP, Transitions, generate_transitions, load_world, plant_clearance
 from .train import (CONFIG_DIR, STATE_NAMES, _errors, _locked, cache_paths, format_errors, load_or_generate_dataset,
                     load_or_train, split_by_trajectory)
@@ -50,8 +50,8 @@ def eval_sets(cfg: DynamicsConfig, cache_root: str | Path | None = None, world_c
               ) -> dict[str, Transitions]:
     """Fresh source- and target-world transition sets (cached by data hash + eval seed and sizes)."""
     root = cache_paths(cfg, cache_root, world_cfg)["root"]
-    key = _digest({"data": data_hash(cfg, world_cfg), "seed": cfg.eval.seed, "source": cfg.eval.source_batches,
-                   "target": cfg.eval.target_batches})
+    key = _digest({"data": data_hash(cfg, world_cfg), "plant": plant_dict(cfg.data, world_cfg), "seed": cfg.eval.seed,
+                   "source": cfg.eval.source_batches, "target": cfg.eval.target_batches})
     folder = root / f"eval-{key}"
     out = {}
     for world, n in (("source", cfg.eval.source_batches), ("target", cfg.eval.target_batches)):

@@ -75,6 +75,22 @@ def test_world_content_is_part_of_the_data_hash(tmp_path):
         data_hash(DynamicsConfig.from_dict({"data": {"world": str(tmp_path / "missing.yaml")}}))
 
 
+def test_the_plant_is_not_part_of_the_source_data_hash():
+    """The source world has no plant: changing it keeps the source dataset (and the shipped file) valid,
+    while the evaluation sets, which hold target-world data, key on it."""
+    from sim.world import DEFAULT_CONFIG
+
+    from dynamics.config import plant_dict
+
+    c = DynamicsConfig()
+    w = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    w["plant"]["leaves"][0]["center"] = [0.065, 0.26]
+    assert data_hash(c, w) == data_hash(c)
+    assert plant_dict(c.data, w) != plant_dict(c.data)
+    w["target_cup"]["x"] = 0.25  # the rest of the world still counts
+    assert data_hash(c, w) != data_hash(c)
+
+
 def test_world_given_as_object_or_mapping_overrides_the_file():
     """The main job passes its own (possibly overridden) world config; equal worlds hash equally."""
     from omegaconf import OmegaConf
