@@ -3,9 +3,11 @@
 Four measured rungs, each a precondition of the next, on the default world and the cached default
 dynamics model (the same config composition as ``python -m active.run``, overrides accepted):
 
-1. ``reproducibility``: the same partial pour executed in 32 environment slots from one start and
-   from 32 sampled approach histories; std of the fraction that ends in the target cup. The MDE
-   cannot admit a pour whose outcome scatters more than its precondition allows.
+1. ``reproducibility``: the same partial pour executed in 32 environment slots from one start, from
+   32 sampled approach histories, and from 32 pour positions within one grid cell of each other
+   (sub-cell offsets: what a model that sees (x, y) cannot tell apart); std of the fraction that ends
+   in the target cup. The MDE cannot admit a pour whose outcome scatters more than its precondition
+   allows.
 2. ``source_model_only``: plans from the learned model alone (no MDE) executed in the *source* world,
    where the model was trained. The paper's story needs a model that is good there.
 3. ``target_model_only``: the same in the target world: how much the plant hurts the model.
@@ -43,26 +45,44 @@ TARGETS = {"reproducibility.max_std": ("<=", 0.010), "source_model_only.found": 
 POUR_XY = (0.32, 0.20)
 
 
+def subcell_offsets(n: int, dx: float) -> np.ndarray:
+    """n pour-position offsets (m) spread over one grid cell: a regular grid of about sqrt(n) x sqrt(n)
+    fractions of dx in x and y (8 x 4 for n = 32)."""
+    nx = int(np.ceil(np.sqrt(2 * n)))
+    ny = int(np.ceil(n / nx))
+    ox, oy = np.meshgrid(np.arange(nx) / nx, np.arange(ny) / ny)
+    return dx * np.stack([ox.ravel(), oy.ravel()], 1)[:n]
+
+
 def reproducibility(world, executor, thetas: Sequence[float], hold: float, n: int = 32, seed: int = 7) -> dict:
     """Std of the fraction in the target cup of one pour (a) across n env slots from one start, (b) across n
-    sampled approach histories (problem starts; trajectories stuck on the way are dropped)."""
+    sampled approach histories (problem starts; trajectories stuck on the way are dropped), (c) across n
+    pour positions within one grid cell (:func:`subcell_offsets`; same start).
+
+    (c) is the scatter a model of (x, y, ...) sees between neighbouring training pours: the walls and the
+    pouring lip sit on the grid differently at each offset (BENCHMARKS.md, session 6)."""
     from sim.problems import sample_problems
     from sim.skills import move, pour
 
     starts = np.array([p.start[:3] for p in sample_problems(world, n, seed, world="source")])
+    offsets = subcell_offsets(n, float(world.sim["dx"]))
+    start = np.array([[0.42, 0.20, 0.0]] * n)
     rows = []
     for th in thetas:
         acts = [[move(*POUR_XY), pour(th, hold)]] * n
-        same = executor.run("source", np.array([[0.42, 0.20, 0.0]] * n), acts)
+        same = executor.run("source", start, acts)
         appr = [r for r in executor.run("source", starts, acts) if not r.stuck]
-        a = np.array([r.states[-1, 4] for r in same])
-        b = np.array([r.states[-1, 4] for r in appr])
+        offs = executor.run("source", start, [[move(POUR_XY[0] + ox, POUR_XY[1] + oy), pour(th, hold)]
+                                              for ox, oy in offsets])
+        a, b, c = (np.array([r.states[-1, 4] for r in res]) for res in (same, appr, offs))
         rows.append({"theta": th, "hold": hold, "slots_mean": float(a.mean()), "slots_std": float(a.std()),
                      "approaches": len(b), "approaches_mean": float(b.mean()), "approaches_std": float(b.std()),
+                     "offsets_mean": float(c.mean()), "offsets_std": float(c.std()),
                      "slots_spill_mean": float(np.mean([r.final_spill for r in same]))})
     return {"pours": rows, "slots_std": [r["slots_std"] for r in rows],
             "approaches_std": [r["approaches_std"] for r in rows],
-            "max_std": max(max(r["slots_std"], r["approaches_std"]) for r in rows)}
+            "offsets_std": [r["offsets_std"] for r in rows],
+            "max_std": max(max(r["slots_std"], r["approaches_std"], r["offsets_std"]) for r in rows)}
 
 
 def plan_all(pool, mde, problems, exp, seed: int, purpose: str, mde_beta: float | None = None) -> list:
@@ -321,8 +341,9 @@ def table(result: dict) -> str:
         lines.append(f"{key:34s} {'-' if v is None else fmt.format(v):>9s} "
                      f"{'' if op is None else f'{op} {tgt:g}':>9s}  {met}")
     for r in (_get(result, "reproducibility.pours") or []):
+        offs = f", sub-cell offsets {r['offsets_mean']:.3f} +- {r['offsets_std']:.3f}" if "offsets_std" in r else ""
         lines.append(f"  pour theta {r['theta']:.2f} hold {r['hold']:.2f}: slots {r['slots_mean']:.3f} +- "
-                     f"{r['slots_std']:.3f}, approaches {r['approaches_mean']:.3f} +- {r['approaches_std']:.3f}")
+                     f"{r['slots_std']:.3f}, approaches {r['approaches_mean']:.3f} +- {r['approaches_std']:.3f}{offs}")
     for skill, r in (_get(result, "ceiling.precondition_on_train") or {}).items():
         f = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
         lines.append(f"  ceiling precondition, {skill}s: admits good/bad {f(r.get('in_sample_admitted_good'))}/"

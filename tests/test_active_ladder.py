@@ -17,7 +17,8 @@ def test_tiny_ladder_writes_every_rung(tmp_path, capsys):
           "--ceiling-trajectories", "5", *overrides])
     res = json.loads((tmp_path / "ladder" / "ladder.json").read_text())
     rep = res["reproducibility"]
-    assert len(rep["pours"]) == 1 and rep["max_std"] == max(rep["slots_std"] + rep["approaches_std"])
+    assert len(rep["pours"]) == 1
+    assert rep["max_std"] == max(rep["slots_std"] + rep["approaches_std"] + rep["offsets_std"])
     assert 0.0 <= rep["pours"][0]["slots_mean"] <= 1.0
     for name in ("source_model_only", "target_model_only"):
         assert res[name]["n"] == 2 and 0.0 <= res[name]["success"] <= res[name]["found"] <= 1.0
@@ -37,6 +38,18 @@ def test_tiny_ladder_writes_every_rung(tmp_path, capsys):
     again = json.loads((tmp_path / "again" / "ladder.json").read_text())["ceiling"]
     assert again["train_transitions"] == ceil["train_transitions"]
     assert again["precondition_on_train"] == ceil["precondition_on_train"]
+
+
+def test_subcell_offsets_cover_one_cell_without_repeats():
+    import numpy as np
+
+    from active.ladder import subcell_offsets
+
+    for n in (2, 5, 32):
+        o = subcell_offsets(n, 0.01)
+        assert o.shape == (n, 2) and len(np.unique(o, axis=0)) == n
+        assert (o >= 0).all() and (o < 0.01).all()
+    assert np.allclose(subcell_offsets(32, 0.01)[:8, 0], np.arange(8) * 0.01 / 8)
 
 
 def test_unknown_rung_is_refused_before_compute(tmp_path):
