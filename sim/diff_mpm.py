@@ -32,12 +32,11 @@ import taichi as ti
 
 from .backend import init_taichi
 from .config import SimConfig
-from .physics import affine_momentum, bspline_weights, update_volume_ratio
+from .physics import affine_momentum, box_sdf, bspline_weights, ghost_mass, separate, update_volume_ratio
 from .world import WorldConfig
 
 #: reals stored per particle state: x (2), v (2), C (4), J (1)
 REALS_PER_PARTICLE = 9
-_TINY = 1e-30
 
 
 @ti.func
@@ -69,7 +68,6 @@ class DiffMPM:
         self.p_mass = sc.rho * self.p_vol
         self.bulk = sc.rho * sc.sound_speed**2
         self.gravity = sc.gravity
-        self.friction = sc.friction
         self.wall = sc.wall
         self.domain = sc.domain
         self.soft_width = 0.5 * sc.dx if soft_width is None else float(soft_width)
@@ -138,33 +136,16 @@ class DiffMPM:
     # ================================================================== geometry
     @ti.func
     def _box(self, q, s: ti.template()):
-        """Signed distance and outward normal of box s at q, both in the box's body frame."""
+        """Signed distance and analytic outward normal of box s at q (``physics.box_sdf``), in the body frame."""
         _, cx, cy, hx, hy = ti.static(self.boxes[s])
-        qc = q - ti.Vector([cx, cy], self.real)
-        a = ti.abs(qc) - ti.Vector([hx, hy], self.real)
-        sx = 1.0 if qc[0] >= 0 else -1.0
-        sy = 1.0 if qc[1] >= 0 else -1.0
-        phi = ti.cast(0.0, self.real)
-        nl = ti.Vector.zero(self.real, 2)
-        if a[0] > 0 or a[1] > 0:
-            out = ti.max(a, 0.0)
-            norm = ti.sqrt(ti.max(out.dot(out), _TINY))  # no NaN adjoint at |out| = 0
-            phi = norm
-            nl = ti.Vector([sx * out[0], sy * out[1]]) / norm
-        elif a[0] > a[1]:
-            phi = a[0]
-            nl = ti.Vector([sx, 0.0], self.real)
-        else:
-            phi = a[1]
-            nl = ti.Vector([0.0, sy], self.real)
-        return phi, nl
+        return box_sdf(q - ti.Vector([cx, cy], self.real), ti.Vector([hx, hy], self.real), self.real)
 
     @ti.func
     def _closest(self, b, t, p):
         """Signed distance to the nearest collider, its outward normal and its velocity at p.
 
         Same choice of collider as ``MPMSolver._closest`` (the nearest one); box normals are
-        analytic here (production takes a central difference over 0.1 dx: equal away from corners).
+        analytic (``physics.box_sdf``).
         """
         real = self.real
         phi = ti.cast(1e9, real)
@@ -202,19 +183,6 @@ class DiffMPM:
                 n = nl
                 vc = ti.Vector.zero(real, 2)
         return phi, n, vc
-
-    @ti.func
-    def _separate(self, v, vc, n):
-        """Remove inflow relative to the collider, keep outflow (as ``MPMSolver._separate``)."""
-        vr = v - vc
-        vn = vr.dot(n)
-        if vn < 0:
-            vt = vr - vn * n
-            if ti.static(self.friction > 0):
-                vt_norm = ti.sqrt(ti.max(vt.dot(vt), _TINY))
-                vt *= ti.max(0.0, 1.0 + self.friction * vn / vt_norm)
-            vr = vt
-        return vr + vc
 
     # ================================================================== kernels
     @ti.kernel
@@ -262,10 +230,10 @@ class DiffMPM:
                 pos = ti.Vector([i * dx, j * dx], real)
                 phi, n, vc = self._closest(b, t, pos)
                 if phi < 0:
-                    v = self._separate(v, vc, n)
+                    v = separate(v, vc, n, self.sc.friction)
                 self.grid_v_out[b, i, j] = v
-                if ti.static(self.sc.boundary_density):  # ghost mass, as MPMSolver._update_node
-                    self.grid_rho[b, i, j] = ti.select(phi < 0, ti.max(m, ti.static(self.sc.ppc * self.p_mass)), m)
+                if ti.static(self.sc.boundary_density):
+                    self.grid_rho[b, i, j] = ghost_mass(m, phi, ti.static(self.sc.ppc * self.p_mass))
         # 3. grid to particle, advection, collider projection, position clamp
         ti.loop_config(block_dim=1)
         for b in range(self.B):
@@ -291,7 +259,7 @@ class DiffMPM:
                 phi, n, vc = self._closest(b, t, xn)
                 if phi < 0:
                     xn -= phi * n
-                    new_v = self._separate(new_v, vc, n)
+                    new_v = separate(new_v, vc, n, self.sc.friction)
                 for d in ti.static(range(2)):
                     xn[d] = ti.math.clamp(xn[d], dx, (self.res[d] - 2) * dx)
                 self.x[s + 1, b, p] = xn

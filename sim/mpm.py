@@ -30,7 +30,7 @@ import taichi as ti
 
 from .backend import init_taichi
 from .config import ConfigError, SimConfig
-from .physics import affine_momentum, bspline_weights, update_volume_ratio
+from .physics import affine_momentum, box_sdf, bspline_weights, ghost_mass, separate, update_volume_ratio
 from .scene import SHAPE_KINDS, EnvSpec, sample_water
 
 log = logging.getLogger(__name__)
@@ -344,8 +344,7 @@ class MPMSolver:
         kind = self.shape_kind[b, s]
         phi = 0.0
         if kind == 0:  # box
-            a = ti.abs(q) - size
-            phi = ti.max(a, 0.0).norm() + ti.min(ti.max(a[0], a[1]), 0.0)
+            phi, _ = box_sdf(q, size, ti.f32)  # normals: central differences in _normal_and_velocity
         elif kind == 1:  # capsule along local x
             cx = ti.math.clamp(q[0], -size[0], size[0])
             phi = ti.Vector([q[0] - cx, q[1]]).norm() - size[1]
@@ -407,20 +406,6 @@ class MPMSolver:
         return n, vc
 
     @ti.func
-    def _separate(self, v, vc, n):
-        """Remove inflow relative to the collider, keep outflow; Coulomb friction on the slip."""
-        vr = v - vc
-        vn = vr.dot(n)
-        if vn < 0:
-            vt = vr - vn * n
-            if ti.static(self.cfg.friction > 0):
-                vt_norm = vt.norm()
-                if vt_norm > 1e-10:
-                    vt *= ti.max(0.0, 1.0 + self.cfg.friction * vn / vt_norm)
-            vr = vt
-        return vr + vc
-
-    @ti.func
     def _p2g(self, b, p):
         dx = self.cfg.dx
         inv_dx = 1.0 / dx
@@ -473,9 +458,9 @@ class MPMSolver:
             phi, idx = self._closest(b, pos)
             if phi < 0:
                 n, vc = self._normal_and_velocity(b, idx, pos)
-                v = self._separate(v, vc, n)
-                if ti.static(self.cfg.boundary_density):  # ghost mass: a solid node reads as water at rest
-                    self.grid_m[I] = ti.max(m, ti.static(self.cfg.ppc * self.p_mass))
+                v = separate(v, vc, n, self.cfg.friction)
+            if ti.static(self.cfg.boundary_density):  # ghost mass: a solid node reads as water at rest
+                self.grid_m[I] = ghost_mass(m, phi, ti.static(self.cfg.ppc * self.p_mass))
             self.grid_v[I] = v
 
     @ti.func
@@ -558,7 +543,7 @@ class MPMSolver:
                 if phi < 0:
                     n, vc = self._normal_and_velocity(b, idx, xn)
                     xn -= phi * n
-                    new_v = self._separate(new_v, vc, n)
+                    new_v = separate(new_v, vc, n, self.cfg.friction)
                 J = update_volume_ratio(self.J[b, p], new_C.trace(), mass_near, dt, ti.static(self.cfg.ppc * self.p_mass),
                                         ti.static(min(dt / self.cfg.volume_relax, 1.0)),
                                         self.cfg.volume_correction, self.cfg.tension,
