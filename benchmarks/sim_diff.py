@@ -60,7 +60,8 @@ def measure(n_envs: int, checkpoint_every: int | None) -> dict:
     out = dp.value_and_grad(params, wrt=("x", "y", "theta", "hold"), objective="in_target", horizon=horizon)
     t2 = time.perf_counter()
     rss1 = _maxrss()
-    est = DiffMPM.memory_bytes(n_envs, dp.N, dp.max_substeps, dp.K, dp.sim.res)
+    est = DiffMPM.memory_bytes(n_envs, dp.N, dp.max_substeps, dp.K, dp.sim.res,
+                               boundary_density=dp.sim.sc.boundary_density)
     dp.close()
     return {"n_envs": n_envs, "checkpoint_every": dp.K, "checkpointing": dp.K < dp.max_substeps,
             "substeps": fwd.substeps, "particles_per_env": dp.N, "forward_s": t1 - t0,

@@ -186,19 +186,19 @@ class DifferentiablePour:
         self.N = max(len(w) for w in self._local_water)
         self.precision = precision
         budget = 0.5 * available_memory() if memory_budget is None else float(memory_budget)
-        self._check_memory(budget, sc.res)
+        self._check_memory(budget, sc.res, sc.boundary_density)
         self.sim = DiffMPM(cfg, self.B, self.N, self.max_substeps, self.K, precision=precision, arch=arch,
                            soft_width=soft_width)
         self._boundary = cup_boundary(cfg)
         self.last_timing: dict[str, float] = {}
 
     # ------------------------------------------------------------------ set-up checks
-    def _check_memory(self, budget: float, res: tuple[int, int]) -> None:
+    def _check_memory(self, budget: float, res: tuple[int, int], boundary_density: bool) -> None:
         """ConfigError naming horizon / checkpoint_every / n_envs when the fields would not fit."""
         B, N, S = self.B, self.N, self.max_substeps
 
         def need(b: int, s: int, k: int) -> int:
-            return DiffMPM.memory_bytes(b, N, s, k, res, self.precision)
+            return DiffMPM.memory_bytes(b, N, s, k, res, self.precision, boundary_density=boundary_density)
 
         self.memory_estimate = need(B, S, self.K)
         if self.memory_estimate <= budget:

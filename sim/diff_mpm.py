@@ -37,6 +37,10 @@ from .world import WorldConfig
 
 #: reals stored per particle state: x (2), v (2), C (4), J (1)
 REALS_PER_PARTICLE = 9
+#: reals stored per grid node: momentum in (2), mass (1), velocity out (2); + 1 with sim.boundary_density
+REALS_PER_NODE = 5
+#: reals per environment: end pose (3), soft fractions in the two cups (2)
+REALS_PER_ENV = 5
 
 
 @ti.func
@@ -91,16 +95,15 @@ class DiffMPM:
         self.C = ti.Matrix.field(2, 2, real, needs_grad=True)
         self.J = ti.field(real, needs_grad=True)
         fb.dense(ti.ijk, (K1, B, N)).place(self.x, self.v, self.C, self.J)
-        self.ck_x = ti.Vector.field(2, real)
-        self.ck_v = ti.Vector.field(2, real)
-        self.ck_C = ti.Matrix.field(2, 2, real)
-        self.ck_J = ti.field(real)
-        fb.dense(ti.ijk, (self.n_ck, B, N)).place(self.ck_x, self.ck_v, self.ck_C, self.ck_J)
         self.grid_v_in = ti.Vector.field(2, real, needs_grad=True)
         self.grid_m = ti.field(real, needs_grad=True)
         self.grid_v_out = ti.Vector.field(2, real, needs_grad=True)
-        self.grid_rho = ti.field(real, needs_grad=True)  # mass for the density estimate (sim.boundary_density)
-        fb.dense(ti.ijk, (B,) + self.res).place(self.grid_v_in, self.grid_m, self.grid_v_out, self.grid_rho)
+        grid = [self.grid_v_in, self.grid_m, self.grid_v_out]
+        self.grid_rho = None  # mass for the density estimate: only with sim.boundary_density
+        if sc.boundary_density:
+            self.grid_rho = ti.field(real, needs_grad=True)
+            grid.append(self.grid_rho)
+        fb.dense(ti.ijk, (B,) + self.res).place(*grid)
         self.cup_pose = ti.Vector.field(3, real, needs_grad=True)
         self.cup_vel = ti.Vector.field(3, real, needs_grad=True)
         fb.dense(ti.ij, (self.T_max, B)).place(self.cup_pose, self.cup_vel)
@@ -111,27 +114,41 @@ class DiffMPM:
         fb.dense(ti.i, B).place(self.end_pose, self.soft_ctrl, self.soft_tgt, self.n_part)
         fb.lazy_grad()
         self._tree = fb.finalize()
+        # checkpoints in a tree of their own: lazy_grad gives every real field of a tree an adjoint,
+        # and checkpoints are only copied, never differentiated
+        ck = ti.FieldsBuilder()
+        self.ck_x = ti.Vector.field(2, real)
+        self.ck_v = ti.Vector.field(2, real)
+        self.ck_C = ti.Matrix.field(2, 2, real)
+        self.ck_J = ti.field(real)
+        ck.dense(ti.ijk, (self.n_ck, B, N)).place(self.ck_x, self.ck_v, self.ck_C, self.ck_J)
+        self._ck_tree = ck.finalize()
         ti.sync()
 
     # ================================================================== memory
     @staticmethod
     def memory_bytes(n_envs: int, n_particles: int, substeps: int, checkpoint_every: int, res: tuple[int, int],
-                     precision: str = "f64") -> int:
-        """Bytes of Taichi fields plus the host-side trajectory arrays for these sizes."""
+                     precision: str = "f64", *, boundary_density: bool) -> int:
+        """Bytes of Taichi fields plus the host-side trajectory arrays for these sizes.
+
+        ``boundary_density``: the world's ``sim.boundary_density``, which adds a grid field.
+        """
         r = 8 if precision == "f64" else 4
         K = min(int(checkpoint_every), int(substeps))
         per_state = n_envs * n_particles * REALS_PER_PARTICLE * r
         segment = (K + 1) * per_state * 2  # values + adjoints
         checkpoints = math.ceil(substeps / K) * per_state
-        grid = n_envs * res[0] * res[1] * 5 * r * 2
+        grid = n_envs * res[0] * res[1] * (REALS_PER_NODE + bool(boundary_density)) * r * 2
         cup = substeps * n_envs * 6 * r * 2  # pose + velocity per substep, values + adjoints
+        per_env = n_envs * (REALS_PER_ENV * 2 + 1) * r  # values + adjoints; the i32 particle count is padded to a real
         host = substeps * n_envs * 6 * 8 * 3  # trajectory and its two adjoint copies (float64)
-        return int(segment + checkpoints + grid + cup + host)
+        return int(segment + checkpoints + grid + cup + per_env + host)
 
     def close(self) -> None:
-        if getattr(self, "_tree", None) is not None:
-            self._tree.destroy()
-            self._tree = None
+        for name in ("_tree", "_ck_tree"):
+            if getattr(self, name, None) is not None:
+                getattr(self, name).destroy()
+                setattr(self, name, None)
 
     # ================================================================== geometry
     @ti.func
@@ -191,11 +208,12 @@ class DiffMPM:
             self.grid_v_in[I] = ti.Vector.zero(self.real, 2)
             self.grid_m[I] = 0.0
             self.grid_v_out[I] = ti.Vector.zero(self.real, 2)
-            self.grid_rho[I] = 0.0
-            self.grid_rho.grad[I] = 0.0
             self.grid_v_in.grad[I] = ti.Vector.zero(self.real, 2)
             self.grid_m.grad[I] = 0.0
             self.grid_v_out.grad[I] = ti.Vector.zero(self.real, 2)
+            if ti.static(self.sc.boundary_density):
+                self.grid_rho[I] = 0.0
+                self.grid_rho.grad[I] = 0.0
 
     @ti.kernel
     def substep(self, s: ti.i32, t: ti.i32):

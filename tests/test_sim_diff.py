@@ -14,6 +14,7 @@ are far from zero (asserted).
 
 import numpy as np
 import pytest
+from taichi.lang.field import Field
 
 from sim.config import ConfigError
 from sim.diff import PARAMS, DifferentiablePour, refine_pours
@@ -167,10 +168,38 @@ def test_horizon_that_cannot_fit_even_with_checkpointing_fails_before_compute(cf
 
 
 def test_memory_estimate_is_o_of_t_over_k_plus_k():
-    kw = dict(n_envs=8, n_particles=140, substeps=16875, res=(60, 60))
+    kw = dict(n_envs=8, n_particles=140, substeps=16875, res=(60, 60), boundary_density=True)
     best = DiffMPM.memory_bytes(checkpoint_every=130, **kw)
     assert DiffMPM.memory_bytes(checkpoint_every=16875, **kw) > 10 * best
     assert DiffMPM.memory_bytes(checkpoint_every=1, **kw) > 5 * best
+
+
+def _field_bytes(sim: DiffMPM) -> int:
+    """Bytes Taichi allocated for the solver's fields: cell size x cells of every dense node holding one."""
+    nodes = {}
+    for f in vars(sim).values():
+        if isinstance(f, Field):
+            dense = f.snode.parent()
+            nodes[dense.ptr.id] = dense
+    return sum(d.ptr.cell_size_bytes * int(np.prod(d.shape)) for d in nodes.values())
+
+
+@pytest.mark.parametrize("boundary_density", [True, False])
+def test_memory_estimate_is_what_the_fields_allocate(cfg, boundary_density):
+    """The estimate counts every field as allocated: the density-estimate grid only with
+    sim.boundary_density, adjoints for the differentiated fields only (not for the checkpoints)."""
+    world = WorldConfig.from_mapping({**cfg.__dict__, "sim": dict(cfg.sim, boundary_density=boundary_density),
+                                      "controlled_cup": cfg.controlled_cup.__dict__,
+                                      "target_cup": cfg.target_cup.__dict__})
+    B, N, S, K = 3, 50, 40, 7
+    sim = DiffMPM(world, B, N, S, K)
+    try:
+        assert (sim.grid_rho is not None) == boundary_density
+        host = S * B * 6 * 8 * 3
+        est = DiffMPM.memory_bytes(B, N, S, K, sim.res, boundary_density=boundary_density)
+        assert _field_bytes(sim) == est - host
+    finally:
+        sim.close()
 
 
 def test_cup_overlapping_the_target_is_rejected(dp):
