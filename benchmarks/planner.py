@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import platform
 import statistics
-import sys
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -31,8 +30,7 @@ import numpy as np
 
 import torch
 
-import safeio
-
+from benchmarks._cli import report
 from planner.config import PlannerConfig
 from planner.rrt import Planner, _Evaluator, _torch_threads
 from task.problems import sample_problems
@@ -256,11 +254,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             candidate_problems=args.candidate_problems, unbatched_problems=args.unbatched_problems,
             throughput_seconds=args.throughput_seconds, time_budget=args.time_budget, dynamics_path=args.dynamics,
             known_obstacles=args.known_obstacles)
-    print(format_table(r))
-    if args.out is not None:
-        safeio.write_json(args.out, r, indent=2, default=str)
-        print(f"wrote {args.out}")
-    sys.stdout.flush()
+    report(format_table(r), r, args.out)
     return 0
 
 

@@ -38,8 +38,7 @@ from typing import Any, Sequence
 
 import torch
 
-import safeio
-
+from benchmarks._cli import report
 from planner.pool import PlanPool, PlanRequest, available_cpus
 from planner.results import CandidateSet, PlanResult
 
@@ -223,11 +222,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         ap.error("--repeat must be >= 1")
     r = run(args.overrides, workers=args.workers, mde_path=args.mde, seed=args.seed, iteration=args.iteration,
             repeat=args.repeat)
-    print(format_table(r))
-    if args.out is not None:
-        safeio.write_json(args.out, r, indent=2, default=str)
-        print(f"wrote {args.out}")
-    sys.stdout.flush()
+    report(format_table(r), r, args.out)
     return 0 if all(b["identical"] for b in r["batches"].values()) else 1
 
 
