@@ -95,19 +95,8 @@ def plan_all(pool, mde, problems, exp, seed: int, purpose: str, mde_beta: float 
     beta = exp.beta_test if mde_beta is None else mde_beta
     reqs = [PlanRequest("plan", prob.start, prob.goal, beta=beta, d_max=exp.d_max,
                         seed=derive_seed(seed, "ladder", purpose, k)) for k, prob in enumerate(problems)]
-    try:
-        return [res.trajectory if res.found else None for res in pool.run(reqs, mde)]
-    except Exception as err:  # noqa: BLE001 - find which plans fail; a failed plan is recorded, the rung goes on
-        log.warning("ladder %s: a plan failed (%s); planning one by one", purpose, err)
-    plans = []
-    for k, req in enumerate(reqs):
-        try:
-            res = pool.run([req], mde)[0]
-            plans.append(res.trajectory if res.found else None)
-        except Exception as err:  # noqa: BLE001
-            log.warning("ladder %s: planning problem %d failed: %s", purpose, k, err)
-            plans.append(None)
-    return plans
+    # a plan that raises is logged and recorded as not found; the rung goes on
+    return [res.trajectory if res.found else None for res in pool.run(reqs, mde, errors="record")]
 
 
 def execute_plans(executor, world_name: str, problems, plans) -> list:

@@ -44,7 +44,7 @@ from .tracking import Tracker
 log = logging.getLogger(__name__)
 
 RESULT_FIELDS = ["method", "seed", "iteration", "n_trajectories", "n_transitions", "beta", "test_success",
-                 "test_plan_found", "train_goal_reached", "fallbacks", "plan_seconds", "sim_seconds", "fit_seconds",
+                 "test_plan_found", "train_goal_reached", "fallbacks", "plan_errors", "plan_seconds", "sim_seconds", "fit_seconds",
                  "test_seconds", "iteration_seconds"]
 CATEGORY_FIELDS = ["method", "seed", "iteration", "trajectory", "category", "source", "n_candidates", "steps",
                    "stuck", "stuck_on", "final_spill", "goal", "goal_reached"]
@@ -327,6 +327,7 @@ class MethodRun:
         plan_mde = self.mde if self.mde.is_fitted else None  # the precondition the planner uses
         t_plan = t_sim = t_fit = 0.0
         fallbacks = reached = 0
+        self.plan_errors = 0  # planner runs that raised this iteration (recorded as not found)
         for c0 in range(0, len(problems), exp.refit_every):
             chunk = problems[c0:c0 + exp.refit_every]
             tp = time.perf_counter()
@@ -365,7 +366,7 @@ class MethodRun:
                "n_trajectories": self.state["n_trajectories"], "n_transitions": int(len(self.state["y"])), "beta": beta,
                "test_success": success, "test_plan_found": found,
                **({"test_success_refined": self.last_refined_success} if exp.refine_steps else {}), "train_goal_reached": reached / len(problems),
-               "fallbacks": fallbacks, "plan_seconds": round(t_plan, 3), "sim_seconds": round(t_sim, 3),
+               "fallbacks": fallbacks, "plan_errors": self.plan_errors, "plan_seconds": round(t_plan, 3), "sim_seconds": round(t_sim, 3),
                "fit_seconds": round(t_fit, 3), "test_seconds": round(t_test, 3),
                "iteration_seconds": round(time.perf_counter() - t_start, 3)}
         self.state["results"].append(row)
@@ -379,7 +380,9 @@ class MethodRun:
         reqs = [PlanRequest("candidates", prob.start, prob.goal, n=exp.candidates, beta=beta, d_max=exp.d_max,
                             seed=derive_seed(ctx.seed, self.method, "plan", it, c0 + j))
                 for j, prob in enumerate(chunk)]
-        return ctx.planner_pool().run(reqs, mde)
+        sets = ctx.planner_pool().run(reqs, mde, errors="record")
+        self.plan_errors += sum(r.stats.termination == "error" for s in sets for r in s.runs)
+        return sets
 
     def _choose(self, prob: Problem, cands: Any, it: int, k: int):
         ctx, exp = self.ctx, self.ctx.exp
@@ -400,7 +403,9 @@ class MethodRun:
         ctx, exp = self.ctx, self.ctx.exp
         reqs = [PlanRequest("plan", prob.start, prob.goal, beta=exp.beta_test, d_max=exp.d_max,
                             seed=derive_seed(ctx.seed, "test-plan", it, k)) for k, prob in enumerate(ctx.test_problems)]
-        plans = [res.trajectory if res.found else None for res in ctx.planner_pool().run(reqs, mde)]
+        found = ctx.planner_pool().run(reqs, mde, errors="record")  # a failed plan counts as not found
+        self.plan_errors += sum(res.stats.termination == "error" for res in found)
+        plans = [res.trajectory if res.found else None for res in found]
         idx = [k for k, p in enumerate(plans) if p is not None]
         success = refined = 0
         if idx:

@@ -28,6 +28,9 @@ How:
 * A request that raises in a worker raises the same exception in the parent (with the worker's
   traceback attached as its cause), for the first failing request in request order, as the
   sequential loop would; the batch's other running requests are waited for, pending ones dropped.
+  With ``run(..., errors="record")`` a failing run is instead recorded as a run that found nothing
+  (``stats.termination == "error"``, ``stats.error`` the message) and the batch goes on: how the
+  experiment keeps going when one plan fails.
 * A worker that dies (crash, out of memory: ``BrokenProcessPool``) or a pool that cannot start
   (e.g. a model that does not pickle) is logged as a warning and planning continues in-process
   for the rest of the run; since results do not depend on where they are computed, they do not
@@ -49,13 +52,13 @@ from concurrent.futures import Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
 from .config import PlannerConfig
 from .interfaces import DeviationEstimator, DynamicsModel
-from .results import CandidateSet, PlanResult
+from .results import CandidateSet, PlannerStats, PlanResult
 from .rrt import Planner, candidate_seeds, collect_candidates
 
 log = logging.getLogger(__name__)
@@ -163,9 +166,15 @@ class PlanPool:
         """True when requests go to worker processes (now or on the next :meth:`run`)."""
         return self.workers > 1 and self.fallback_reason is None and not self._closed
 
-    def run(self, requests: Sequence[PlanRequest], mde: DeviationEstimator | None = None
-            ) -> list[PlanResult | CandidateSet]:
-        """Results of ``requests`` in request order, as in-process calls with ``mde`` would give."""
+    def run(self, requests: Sequence[PlanRequest], mde: DeviationEstimator | None = None,
+            errors: str = "raise") -> list[PlanResult | CandidateSet]:
+        """Results of ``requests`` in request order, as in-process calls with ``mde`` would give.
+
+        ``errors``: "raise" (the first failing request's exception ends the batch) or "record" (a
+        run that raises becomes a run that found nothing, :func:`failed_run`; the others are unchanged).
+        """
+        if errors not in _ERRORS:
+            raise ValueError(f"PlanPool.run errors = {errors!r}: allowed one of {_ERRORS}")
         if self._closed:
             raise RuntimeError("PlanPool.run after close()")
         requests = list(requests)
@@ -176,9 +185,10 @@ class PlanPool:
             return []
         if self.parallel:
             self.start()
+        record = errors == "record"
         if self._executor is None:
-            return self._run_here(requests, mde)
-        return self._run_in_workers(requests, mde)
+            return self._run_here(requests, mde, record)
+        return self._run_in_workers(requests, mde, record)
 
     def start(self) -> float:
         """Start the worker processes now (otherwise the first :meth:`run` does); returns seconds.
@@ -231,33 +241,42 @@ class PlanPool:
         return f"PlanPool(workers={self.workers}, {state})"
 
     # -- internals ----------------------------------------------------------------------------------
-    def _run_here(self, requests: list[PlanRequest], mde: DeviationEstimator | None) -> list:
+    def _run_here(self, requests: list[PlanRequest], mde: DeviationEstimator | None, record: bool = False) -> list:
         planner = Planner(self.dynamics, mde, self.config)
-        return [r.run(planner) for r in requests]
+        if not record:
+            return [r.run(planner) for r in requests]
+        out: list = []
+        for r in requests:
+            if r.kind == "plan":
+                out.append(_recorded(lambda u=r: u.run(planner), r))
+            else:  # per run, so that one failing run keeps its siblings' candidates
+                out.append(collect_candidates([_recorded(lambda u=u: u.run(planner), u) for u in r.units(self.config)]))
+        return out
 
-    def _run_in_workers(self, requests: list[PlanRequest], mde: DeviationEstimator | None) -> list:
+    def _run_in_workers(self, requests: list[PlanRequest], mde: DeviationEstimator | None,
+                        record: bool = False) -> list:
         assert self._executor is not None
         groups = [r.units(self.config) for r in requests]
         units = [u for g in groups for u in g]
         if len(units) == 1:  # nothing to run side by side
-            return self._run_here(requests, mde)
+            return self._run_here(requests, mde, record)
         try:
             ref = self._publish_mde(mde)
         except Exception as e:  # noqa: BLE001 - e.g. an MDE that does not pickle: it still plans in-process
             self._fall_back(f"the MDE could not be sent to the worker processes ({type(e).__name__}: {e})")
-            return self._run_here(requests, mde)
+            return self._run_here(requests, mde, record)
         try:
             futures = [self._executor.submit(_work, u, ref) for u in units]
         except BrokenProcessPool as e:
             self._fall_back(f"a planner worker process died ({e})")
-            return self._run_here(requests, mde)
+            return self._run_here(requests, mde, record)
         done: list[PlanResult] = []
         try:
-            for f in futures:
-                done.append(f.result())
+            for u, f in zip(units, futures):
+                done.append(_recorded(f.result, u) if record else f.result())
         except BrokenProcessPool as e:
             self._fall_back(f"a planner worker process died ({e})")
-            done += self._finish_here(units[len(done):], futures[len(done):], mde)
+            done += self._finish_here(units[len(done):], futures[len(done):], mde, record)
         except Exception:  # a request failed: as in-process, its error ends the batch
             _drop(futures, wait_running=True)
             raise
@@ -270,7 +289,8 @@ class PlanPool:
             out.append(runs[0] if r.kind == "plan" else collect_candidates(runs))
         return out
 
-    def _finish_here(self, units: list[PlanRequest], futures: list[Future], mde) -> list[PlanResult]:
+    def _finish_here(self, units: list[PlanRequest], futures: list[Future], mde, record: bool = False
+                     ) -> list[PlanResult]:
         """After a worker died: keep what finished, plan the rest in-process (in order)."""
         planner = Planner(self.dynamics, mde, self.config)
         out = []
@@ -278,7 +298,7 @@ class PlanPool:
             if f.done() and not f.cancelled() and f.exception() is None:
                 out.append(f.result())
             else:
-                out.append(u.run(planner))
+                out.append(_recorded(lambda u=u: u.run(planner), u) if record else u.run(planner))
         return out
 
     def _publish_mde(self, mde: DeviationEstimator | None) -> tuple[str, str] | None:
@@ -321,6 +341,33 @@ class PlanPool:
             shutil.rmtree(self._tmp, ignore_errors=True)
             self._tmp = None
         self._mde_ref = None
+
+
+_ERRORS = ("raise", "record")
+
+
+def failed_run(request: PlanRequest, error: BaseException) -> PlanResult:
+    """A single run that raised, recorded as a run that found nothing (``termination="error"``)."""
+    seed = request.seed  # as the run would have drawn it (Planner.plan: the first of two 32-bit words)
+    if seed is not None and not isinstance(seed, np.random.SeedSequence):
+        seed = np.random.SeedSequence(int(seed))
+    seed = 0 if seed is None else int(seed.generate_state(2, dtype=np.uint32)[0])
+    stats = PlannerStats(found=False, time_s=0.0, propagations=0, mde_evaluations=0, expansions=0, rejected=0,
+                         tree_size=0, termination="error", seed=seed, best_goal_distance=float("inf"),
+                         error=f"{type(error).__name__}: {error}")
+    return PlanResult(None, stats)
+
+
+def _recorded(call: Callable[[], PlanResult], unit: PlanRequest) -> PlanResult:
+    """``call()``, or the failure recorded (:func:`failed_run`) when it raises an ``Exception``."""
+    try:
+        return call()
+    except BrokenProcessPool:
+        raise
+    except Exception as e:  # noqa: BLE001 - recorded, logged, the batch goes on
+        log.warning("a plan failed and is recorded as not found (goal %.3f, seed %s): %s: %s", unit.goal, unit.seed,
+                    type(e).__name__, e)
+        return failed_run(unit, e)
 
 
 def _drop(futures: list[Future], wait_running: bool) -> None:

@@ -71,7 +71,8 @@ class PlannerStats:
     including the start; ``termination``: "solved", "trivial" (start already satisfies the goal),
     "propagation_budget", "time_budget", "exhausted" (no node can be expanded any more) or
     "unreachable" (the start is a dead state: spill above the limit, too much water in the
-    target cup or too little left; only with ``prune_dead_states``);
+    target cup or too little left; only with ``prune_dead_states``) or "error" (the run raised and
+    the caller asked for failures to be recorded, :meth:`planner.PlanPool.run`; ``error`` says why);
     ``seed``: the 32-bit seed of this run's numpy Generator (derived from the caller's seed);
     ``best_goal_distance``: smallest goal distance over the tree (0 when found).
     """
@@ -86,6 +87,7 @@ class PlannerStats:
     termination: str
     seed: int
     best_goal_distance: float
+    error: str = ""
 
     @property
     def propagations_per_s(self) -> float:

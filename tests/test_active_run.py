@@ -111,6 +111,28 @@ def test_planner_workers_do_not_change_results(cache, straight_run, tmp_path):
         assert torch.equal(a["X"], b["X"]) and torch.equal(a["y"], b["y"])
 
 
+@pytest.mark.slow  # another tiny run (the mechanism itself: tests/test_planner_pool.py, in CI)
+def test_a_plan_that_raises_is_recorded_and_the_run_goes_on(cache, straight_run, tmp_path, monkeypatch, caplog):
+    """One planner run in two raises: the run finishes, the failures are counted (plan_errors) and logged."""
+    import planner.rrt
+
+    real, calls = planner.rrt.Planner.plan, []
+
+    def flaky(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) % 2 == 0:
+            raise RuntimeError("simulated planner failure")
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(planner.rrt.Planner, "plan", flaky)  # in-process planning: planner.workers=1
+    out = tmp_path / "flaky"
+    run_experiment(compose_config(tiny_overrides(cache) + ["planner.workers=1"]), out)
+    rows = read_csv(out / "active_balanced" / "results.csv")
+    assert [int(r["iteration"]) for r in rows] == [1, 2]
+    assert sum(int(r["plan_errors"]) for r in rows) > 0
+    assert "simulated planner failure" in caplog.text
+
+
 @pytest.mark.parametrize("override,match", [
     ("method=active_bold", "method = 'active_bold': allowed one of"),
     ("experiment.iterations=0", "experiment.iterations = 0: allowed an integer >= 1"),

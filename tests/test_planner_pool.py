@@ -114,6 +114,24 @@ def test_a_failing_request_raises_as_in_process_and_the_pool_goes_on(pool, dynam
     assert [fingerprint(r) for r in pool.run(reqs[:2], None)] == want
 
 
+@pytest.mark.parametrize("where", ["workers", "in_process"])
+def test_recorded_errors_fail_only_their_own_runs(pool, dynamics, where):
+    """errors="record": a run that raises is a run that found nothing, with the reason; the rest is unchanged."""
+    reqs = requests()[:2]
+    six = [0.4, 0.1, 0.0, 1.0, 0.0, 9.9]  # six state entries: the planner refuses them
+    bad = [PlanRequest("plan", six, 0.5, seed=1), PlanRequest("candidates", six, 0.5, seed=2, n=2)]
+    runner = pool if where == "workers" else PlanPool(dynamics, CFG, workers=1)
+    got = runner.run([reqs[0], bad[0], reqs[1], bad[1]], None, errors="record")
+    want = in_process(dynamics, None, reqs)
+    assert [fingerprint(got[0]), fingerprint(got[2])] == [fingerprint(r) for r in want]
+    assert isinstance(got[1], PlanResult) and not got[1].found
+    assert got[1].stats.termination == "error" and got[1].stats.error.startswith("ValueError")
+    assert isinstance(got[3], CandidateSet) and not got[3].found and len(got[3].runs) == 2
+    assert all(r.stats.termination == "error" for r in got[3].runs)
+    with pytest.raises(ValueError, match=r"errors = 'ignore': allowed one of \('raise', 'record'\)"):
+        runner.run(reqs, None, errors="ignore")
+
+
 class DiesInWorkers:
     """An MDE that kills any process but the one that made it (a worker crash, e.g. out of memory)."""
 
