@@ -10,12 +10,14 @@ from .config import ARCHES, ConfigError
 _current: str | None = None
 
 
-def init_taichi(arch: str = "cpu", *, debug: bool = False) -> str:
+def init_taichi(arch: str = "cpu", *, debug: bool = False, kernel_profiler: bool = False) -> str:
     """Initialise Taichi once per process for ``arch`` (cpu | gpu | auto); returns the arch in use.
 
     ``gpu`` fails loudly when no GPU backend can start (Taichi itself would silently fall back to
     the CPU, which would make a GPU benchmark meaningless). Re-initialising with another arch resets
-    Taichi: solvers built before are invalid afterwards.
+    Taichi: solvers built before are invalid afterwards. ``kernel_profiler``: Taichi times every
+    offloaded task (one per top-level loop of a kernel; ``benchmarks.sim_profile``); only on the
+    first initialisation of a process.
     """
     global _current
     if arch not in ARCHES:
@@ -24,7 +26,7 @@ def init_taichi(arch: str = "cpu", *, debug: bool = False) -> str:
         return _current
     if _current is not None:
         ti.reset()
-    kwargs = dict(default_fp=ti.f32, debug=debug, log_level=ti.WARN)
+    kwargs = dict(default_fp=ti.f32, debug=debug, log_level=ti.WARN, kernel_profiler=kernel_profiler)
     if arch == "cpu":
         ti.init(arch=ti.cpu, **kwargs)
     else:
