@@ -161,7 +161,7 @@ class DiffMPM:
     def _closest(self, b, t, p):
         """Signed distance to the nearest collider, its outward normal and its velocity at p.
 
-        Same choice of collider as ``MPMSolver._closest`` (the nearest one); box normals are
+        Same choice of collider as ``MPMSolver._contact`` where p is inside one (the deepest); box normals are
         analytic (``physics.box_sdf``).
         """
         real = self.real

@@ -31,7 +31,7 @@ import taichi as ti
 from .backend import init_taichi
 from .config import ConfigError, SimConfig
 from .physics import affine_momentum, box_sdf, bspline_weights, ghost_mass, separate, update_volume_ratio
-from .scene import SHAPE_KINDS, EnvSpec, sample_water
+from .scene import SHAPE_KINDS, EnvSpec, Shape, sample_water
 
 log = logging.getLogger(__name__)
 
@@ -102,8 +102,9 @@ class MPMSolver:
         self.shape_c = ti.Vector.field(2, ti.f32)
         self.shape_cs = ti.Vector.field(2, ti.f32)
         self.shape_size = ti.Vector.field(2, ti.f32)
+        self.shape_radius = ti.field(ti.f32)  # bounding radius about the shape's centre (contact culling)
         fb.dense(ti.ij, (self.B, self.NS)).place(self.shape_kind, self.shape_body, self.shape_c,
-                                                   self.shape_cs, self.shape_size)
+                                                   self.shape_cs, self.shape_size, self.shape_radius)
         self._tree = fb.finalize()
         ti.sync()  # materialise now: Taichi validates pending fields lazily, and a closed solver's would fail
         self._body_state = np.zeros((self.B, self.NB, 6), np.float32)  # x, y, th, vx, vy, w
@@ -128,6 +129,7 @@ class MPMSolver:
         sc = np.zeros((self.B, self.NS, 2), np.float32)
         scs = np.zeros((self.B, self.NS, 2), np.float32)
         ssize = np.ones((self.B, self.NS, 2), np.float32)
+        sradius = np.zeros((self.B, self.NS), np.float32)
         n_shapes = np.zeros(self.B, np.int32)
         bstate = np.zeros((self.B, self.NB, 6), np.float32)
         radius = np.zeros((self.B, self.NB), np.float32)
@@ -164,6 +166,7 @@ class MPMSolver:
                     sc[b, s] = sh.center
                     scs[b, s] = (math.cos(sh.angle), math.sin(sh.angle))
                     ssize[b, s] = sh.size
+                    sradius[b, s] = _bounding_radius(sh)
                     s += 1
             n_shapes[b] = s
         # --- all checks passed: write fields
@@ -181,6 +184,7 @@ class MPMSolver:
         self.shape_c.from_numpy(sc)
         self.shape_cs.from_numpy(scs)
         self.shape_size.from_numpy(ssize)
+        self.shape_radius.from_numpy(sradius)
         self.n_shapes.from_numpy(n_shapes)
         self.body_radius.from_numpy(radius)
         self.body_first_shape.from_numpy(first)
@@ -371,9 +375,19 @@ class MPMSolver:
         return phi
 
     @ti.func
-    def _closest(self, b, p):
-        """Signed distance to the nearest collider and its index (_WALL - axis*2 - side for walls)."""
-        phi = 1e9
+    def _contact(self, b, p):
+        """The collider p is deepest inside: (phi < 0, its index; _WALL - axis*2 - side for the tank
+        walls), or (0, 0) when p is inside none.
+
+        The callers act only on phi < 0 (projection, ghost mass), so only colliders that can contain p
+        are evaluated: a body whose bounding circle does not contain p is skipped, and so is a shape
+        whose own circle does not (both circles contain their shapes, and every shape's distance,
+        the ellipse's estimate included, is negative exactly inside it). The minimum over the colliders
+        containing p, scanned in the same order with the same strict test, is the minimum over all of
+        them: the same (phi, index) to the bit as the full scan whenever p is inside a collider.
+        This query is the solver's largest cost (benchmarks.sim_profile).
+        """
+        phi = 0.0
         idx = 0
         for d in ti.static(range(self.dim)):
             lo = p[d] - self.cfg.wall
@@ -385,23 +399,17 @@ class MPMSolver:
                 phi = hi
                 idx = _WALL - 2 * d - 1
         if ti.static(self.dim == 2):
-            # Shapes are stored body by body (reset). Per body, once: the distance to its bounding
-            # circle (cull: no shape of the body is closer) and the point in the body's frame. The
-            # same tests in the same order as shape by shape, so the same result to the bit; about
-            # half the cost of the particle collider query, the solver's largest (benchmarks.sim_profile).
-            for k in ti.static(range(self.NB)):
+            for k in ti.static(range(self.NB)):  # shapes are stored body by body (reset)
                 ns = self.body_nshapes[b, k]
-                if ns > 0:
-                    bound = (p - self.body_pos[b, k]).norm() - self.body_radius[b, k]
-                    if bound < phi:
-                        q = self._to_body(b, k, p)
-                        s0 = self.body_first_shape[b, k]
-                        for s in range(s0, s0 + ns):
-                            if bound < phi:
-                                ps = self._shape_sdf_in_body(b, s, q)
-                                if ps < phi:
-                                    phi = ps
-                                    idx = s
+                if ns > 0 and (p - self.body_pos[b, k]).norm() < self.body_radius[b, k]:
+                    q = self._to_body(b, k, p)
+                    s0 = self.body_first_shape[b, k]
+                    for s in range(s0, s0 + ns):
+                        if (q - self.shape_c[b, s]).norm() < self.shape_radius[b, s]:
+                            ps = self._shape_sdf_in_body(b, s, q)
+                            if ps < phi:
+                                phi = ps
+                                idx = s
         return phi, idx
 
     @ti.func
@@ -477,7 +485,7 @@ class MPMSolver:
             pos = ti.Vector.zero(ti.f32, self.dim)
             for d in ti.static(range(self.dim)):
                 pos[d] = I[d + 1] * self.cfg.dx
-            phi, idx = self._closest(b, pos)
+            phi, idx = self._contact(b, pos)
             if phi < 0:
                 n, vc = self._normal_and_velocity(b, idx, pos)
                 v = separate(v, vc, n, self.cfg.friction)
@@ -561,7 +569,7 @@ class MPMSolver:
                     new_v += weight * g_v
                     new_C += 4.0 / dx * weight * g_v.outer_product(dpos)
                 xn = self.x[b, p] + dt * new_v
-                phi, idx = self._closest(b, xn)
+                phi, idx = self._contact(b, xn)
                 if phi < 0:
                     n, vc = self._normal_and_velocity(b, idx, xn)
                     xn -= phi * n
@@ -609,6 +617,13 @@ class MPMSolver:
                         q = self._to_body(b, k, q)
                     if lo[r, 0] <= q[0] and q[0] <= hi[r, 0] and lo[r, 1] <= q[1] and q[1] <= hi[r, 1]:
                         out[b, r] += 1
+
+
+def _bounding_radius(shape: Shape) -> float:
+    """Radius about the shape's centre of a circle that contains it (1 mm margin for f32 rounding)."""
+    a, b = shape.size
+    r = {"box": math.hypot(a, b), "capsule": a + b, "ellipse": max(a, b)}[shape.kind]
+    return r + 1e-3
 
 
 def _sample_nd(spec: EnvSpec, cfg: SimConfig, rng: np.random.Generator) -> np.ndarray:
