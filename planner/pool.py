@@ -59,7 +59,7 @@ import numpy as np
 from .config import PlannerConfig
 from .interfaces import DeviationEstimator, DynamicsModel
 from .results import CandidateSet, PlannerStats, PlanResult
-from .rrt import Planner, candidate_seeds, collect_candidates
+from .rrt import Planner, candidate_seeds, collect_candidates, run_seed_sequence, run_seeds
 
 log = logging.getLogger(__name__)
 
@@ -248,9 +248,9 @@ class PlanPool:
         out: list = []
         for r in requests:
             if r.kind == "plan":
-                out.append(_recorded(lambda u=r: u.run(planner), r))
+                out.append(_recorded(lambda u=r: u.run(planner), r, self.config))
             else:  # per run, so that one failing run keeps its siblings' candidates
-                out.append(collect_candidates([_recorded(lambda u=u: u.run(planner), u) for u in r.units(self.config)]))
+                out.append(collect_candidates([_recorded(lambda u=u: u.run(planner), u, self.config) for u in r.units(self.config)]))
         return out
 
     def _run_in_workers(self, requests: list[PlanRequest], mde: DeviationEstimator | None,
@@ -273,7 +273,7 @@ class PlanPool:
         done: list[PlanResult] = []
         try:
             for u, f in zip(units, futures):
-                done.append(_recorded(f.result, u) if record else f.result())
+                done.append(_recorded(f.result, u, self.config) if record else f.result())
         except BrokenProcessPool as e:
             self._fall_back(f"a planner worker process died ({e})")
             done += self._finish_here(units[len(done):], futures[len(done):], mde, record)
@@ -298,7 +298,7 @@ class PlanPool:
             if f.done() and not f.cancelled() and f.exception() is None:
                 out.append(f.result())
             else:
-                out.append(_recorded(lambda u=u: u.run(planner), u) if record else u.run(planner))
+                out.append(_recorded(lambda u=u: u.run(planner), u, self.config) if record else u.run(planner))
         return out
 
     def _publish_mde(self, mde: DeviationEstimator | None) -> tuple[str, str] | None:
@@ -346,19 +346,17 @@ class PlanPool:
 _ERRORS = ("raise", "record")
 
 
-def failed_run(request: PlanRequest, error: BaseException) -> PlanResult:
-    """A single run that raised, recorded as a run that found nothing (``termination="error"``)."""
-    seed = request.seed  # as the run would have drawn it (Planner.plan: the first of two 32-bit words)
-    if seed is not None and not isinstance(seed, np.random.SeedSequence):
-        seed = np.random.SeedSequence(int(seed))
-    seed = 0 if seed is None else int(seed.generate_state(2, dtype=np.uint32)[0])
+def failed_run(request: PlanRequest, error: BaseException, config: PlannerConfig) -> PlanResult:
+    """A single run that raised, recorded as a run that found nothing (``termination="error"``), with the
+    seed that run reports."""
+    seed, _ = run_seeds(run_seed_sequence(config, request.seed))
     stats = PlannerStats(found=False, time_s=0.0, propagations=0, mde_evaluations=0, expansions=0, rejected=0,
                          tree_size=0, termination="error", seed=seed, best_goal_distance=float("inf"),
                          error=f"{type(error).__name__}: {error}")
     return PlanResult(None, stats)
 
 
-def _recorded(call: Callable[[], PlanResult], unit: PlanRequest) -> PlanResult:
+def _recorded(call: Callable[[], PlanResult], unit: PlanRequest, config: PlannerConfig) -> PlanResult:
     """``call()``, or the failure recorded (:func:`failed_run`) when it raises an ``Exception``."""
     try:
         return call()
@@ -367,7 +365,7 @@ def _recorded(call: Callable[[], PlanResult], unit: PlanRequest) -> PlanResult:
     except Exception as e:  # noqa: BLE001 - recorded, logged, the batch goes on
         log.warning("a plan failed and is recorded as not found (goal %.3f, seed %s): %s: %s", unit.goal, unit.seed,
                     type(e).__name__, e)
-        return failed_run(unit, e)
+        return failed_run(unit, e, config)
 
 
 def _drop(futures: list[Future], wait_running: bool) -> None:

@@ -486,11 +486,7 @@ class Planner:
             raise ValueError(f"time_budget={time_budget!r} must be > 0 seconds")
         if pb < 1:
             raise ValueError(f"propagation_budget={propagation_budget!r} must be >= 1")
-        if isinstance(seed, np.random.SeedSequence):
-            ss = seed
-        else:
-            ss = np.random.SeedSequence(c.seed if seed is None else int(seed))
-        return self._run(s0, g, t, b, d, ss, tb, pb)
+        return self._run(s0, g, t, b, d, run_seed_sequence(c, seed), tb, pb)
 
     def plan_candidates(self, start, goal: float, *, n: int | None = None, beta: float | None = None,
                         d_max: float | None = None, tol: float | None = None, seed: int | None = None,
@@ -514,9 +510,9 @@ class Planner:
              ss: np.random.SeedSequence, time_budget: float, propagation_budget: int) -> PlanResult:
         c = self.config
         t0 = time.perf_counter()
-        np_seed, ompl_seed = ss.generate_state(2, dtype=np.uint32)
-        seed_repr = int(np_seed)
-        rng = np.random.default_rng(np.random.SeedSequence(int(np_seed)))
+        np_seed, ompl_seed = run_seeds(ss)
+        seed_repr = np_seed
+        rng = np.random.default_rng(np.random.SeedSequence(np_seed))
         ev = _Evaluator(self.dynamics, self.mde, self.sampler)
         search = _Search(ev, c, start, g, tol, beta, d_max, rng, propagation_budget, t0 + time_budget)
 
@@ -535,7 +531,7 @@ class Planner:
                                                  best_goal_distance=float(search.gdist[0])))
 
         with _ompl_log(c.ompl_log_level), _torch_threads(c.torch_threads):
-            goal_node = self._solve_with_ompl(search, start, int(ompl_seed) % (2**31 - 1) + 1)
+            goal_node = self._solve_with_ompl(search, start, ompl_seed % (2**31 - 1) + 1)
         elapsed = time.perf_counter() - t0
         if search.error is not None:
             raise search.error
@@ -623,6 +619,19 @@ class Planner:
         rrt.clear()
         pdef.clearGoal()
         return found_node
+
+
+def run_seed_sequence(config: PlannerConfig, seed: int | np.random.SeedSequence | None) -> np.random.SeedSequence:
+    """The seed sequence of one :meth:`Planner.plan` run: ``seed`` itself, or ``config.seed`` when None."""
+    if isinstance(seed, np.random.SeedSequence):
+        return seed
+    return np.random.SeedSequence(config.seed if seed is None else int(seed))
+
+
+def run_seeds(ss: np.random.SeedSequence) -> tuple[int, int]:
+    """The run's numpy and OMPL seeds; the first is the one :class:`PlannerStats` reports."""
+    np_seed, ompl_seed = ss.generate_state(2, dtype=np.uint32)
+    return int(np_seed), int(ompl_seed)
 
 
 def candidate_seeds(config: PlannerConfig, n: int | None = None, seed: int | None = None
