@@ -72,11 +72,10 @@ class MPMSolver:
         self.J = ti.field(ti.f32)
         fb.dense(ti.ij, (self.B, self.N)).place(self.x, self.v, self.C, self.J)
         self.n_part = ti.field(ti.i32)
-        self.n_shapes = ti.field(ti.i32)
         self.nan_flag = ti.field(ti.i32)
         self.pinned = ti.field(ti.i32)
         self.active = ti.field(ti.i32)  # 0: environment frozen (costs nothing, state kept as it is)
-        fb.dense(ti.i, self.B).place(self.n_part, self.n_shapes, self.nan_flag, self.pinned, self.active)
+        fb.dense(ti.i, self.B).place(self.n_part, self.nan_flag, self.pinned, self.active)
         # grid nodes each environment's particles touch: [lo, hi] per axis, this and next substep
         self.box_cur = ti.Vector.field(dim, ti.i32)
         self.box_cur_hi = ti.Vector.field(dim, ti.i32)
@@ -130,7 +129,6 @@ class MPMSolver:
         scs = np.zeros((self.B, self.NS, 2), np.float32)
         ssize = np.ones((self.B, self.NS, 2), np.float32)
         sradius = np.zeros((self.B, self.NS), np.float32)
-        n_shapes = np.zeros(self.B, np.int32)
         bstate = np.zeros((self.B, self.NB, 6), np.float32)
         radius = np.zeros((self.B, self.NB), np.float32)
         first = np.zeros((self.B, self.NB), np.int32)
@@ -168,7 +166,6 @@ class MPMSolver:
                     ssize[b, s] = sh.size
                     sradius[b, s] = _bounding_radius(sh)
                     s += 1
-            n_shapes[b] = s
         # --- all checks passed: write fields
         self.specs = list(specs)
         self.x.from_numpy(parts)
@@ -185,7 +182,6 @@ class MPMSolver:
         self.shape_cs.from_numpy(scs)
         self.shape_size.from_numpy(ssize)
         self.shape_radius.from_numpy(sradius)
-        self.n_shapes.from_numpy(n_shapes)
         self.body_radius.from_numpy(radius)
         self.body_first_shape.from_numpy(first)
         self.body_nshapes.from_numpy(nshapes)
