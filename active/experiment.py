@@ -46,7 +46,10 @@ class ExperimentConfig:
     plan_goal_tol: float | None = None
 
     @classmethod
-    def from_mapping(cls, data: Mapping[str, Any], method: str = "all") -> "ExperimentConfig":
+    def from_mapping(cls, data: Mapping[str, Any], method: str = "all",
+                     registry: Mapping[str, Any] | None = None) -> "ExperimentConfig":
+        """Checked settings; ``method`` (not ``all``) narrows ``methods`` to it; ``registry`` is the run's
+        ``methods:`` node (default: the shipped methods), which every method name must be in."""
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
@@ -55,16 +58,16 @@ class ExperimentConfig:
         d["methods"] = tuple(d.get("methods", cls.methods))
         d["beta_train"] = tuple(float(b) for b in d.get("beta_train", cls.beta_train))
         if method != "all":
-            d["methods"] = (check_method(method),)
+            d["methods"] = (check_method(method, registry),)
         cfg = cls(**d)
-        cfg.validate()
+        cfg.validate(registry)
         return cfg
 
-    def validate(self) -> None:
+    def validate(self, registry: Mapping[str, Any] | None = None) -> None:
         if not self.methods:
-            raise ValueError(f"experiment.methods is empty: allowed a list from {sorted(METHODS)}")
+            raise ValueError(f"experiment.methods is empty: allowed a list from {sorted(registry or METHODS)}")
         for m in self.methods:
-            check_method(m)
+            check_method(m, registry)
         for name in ("iterations", "trajectories_per_iteration", "refit_every", "candidates", "test_problems",
                      "random_actions_length", "calibration_trajectories", "planner_propagation_budget"):
             v = getattr(self, name)

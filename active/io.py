@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -17,6 +18,12 @@ import safeio
 
 class RunFileError(RuntimeError):
     """A file in a run directory cannot be used; the message names it and says what to do."""
+
+
+def as_json(obj: Any) -> Any:
+    """``obj`` as JSON would store it (plain dicts, lists and scalars; anything else as ``str``): what a
+    run's ``config.json`` holds, so configs compare and hash the same before and after a round trip."""
+    return json.loads(json.dumps(obj, default=str))
 
 
 def write_json(path: Path, obj: Any) -> None:

@@ -26,8 +26,8 @@ from typing import Any, Mapping
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
-import safeio
 from planner import ActionSampler, PlannerConfig, features
 from planner.pool import PlanPool, PlanRequest, resolve_workers
 from sim.execute import PouringExecutor
@@ -37,7 +37,7 @@ from task import FEATURE_NAMES, state_distance
 from task.problems import Problem, sample_problems
 
 from .experiment import ExperimentConfig
-from .io import load_torch, save_torch, write_csv
+from .io import as_json, load_torch, save_torch, write_csv
 from .methods import RandomPlan, build_method
 from .tracking import Tracker
 
@@ -63,7 +63,11 @@ def derive_seed(*keys: Any) -> int:
 def comparable_config(cfg: Mapping[str, Any]) -> dict:
     """The part of a config that determines results: not run length, logging, progress bars, nor
     where the dynamics cache lives (moving the cache must not make a finished run unresumable)."""
-    c = json.loads(json.dumps(cfg, default=str))
+    c = as_json(cfg)
+    changed = _changed_method_specs(c)
+    c.pop("methods", None)
+    if changed:
+        c["methods"] = changed
     for k in ("iterations", "methods"):
         c.get("experiment", {}).pop(k, None)
     for k in ("cache_root", "progress"):
@@ -90,6 +94,27 @@ def legacy_acquisition(acq: Mapping[str, Any]) -> dict:
     elif a.get("_target_") == "active.acquisition.DiscountedMaxUCB":
         a.setdefault("form", "eq1")
     return a
+
+
+#: the method specs from before the registry was part of a run's config (``methods:``): a run whose methods
+#: have these specs keeps the digest it had then; any other spec of a method it runs enters the digest
+LEGACY_METHOD_SPECS = {
+    "random_actions": {"_target_": "active.methods.RandomActions"},
+    "random_plan": {"_target_": "active.methods.RandomPlan"},
+    "active_cautious": {"_target_": "active.methods.ActiveChoice", "acquisition": {"c": -0.1}},
+    "active_mean": {"_target_": "active.methods.ActiveChoice", "acquisition": {"c": 0.0}},
+    "active_balanced": {"_target_": "active.methods.ActiveChoice", "acquisition": {"c": 0.1}},
+}
+
+
+def _changed_method_specs(c: Mapping[str, Any]) -> dict:
+    """The specs, among the methods the run executes, that differ from :data:`LEGACY_METHOD_SPECS`."""
+    specs = c.get("methods")
+    if not isinstance(specs, dict):
+        return {}
+    method = c.get("method", "all")
+    used = list(c.get("experiment", {}).get("methods", [])) if method == "all" else [method]
+    return {m: specs[m] for m in used if m in specs and specs[m] != LEGACY_METHOD_SPECS.get(m)}
 
 
 #: experiment keys added after runs existed, with the value that changes nothing: left out of the digest
@@ -258,7 +283,7 @@ class MethodRun:
 
     def __init__(self, ctx: Context, method: str, make_mde, make_acquisition, tracker: Tracker):
         self.ctx, self.method = ctx, method
-        self.spec = build_method(method)  # configs/methods.yaml
+        self.spec = build_method(method, ctx.cfg.get("methods"))  # the run's methods: node
         self.dir = ctx.out / method
         self.dir.mkdir(parents=True, exist_ok=True)
         self.make_mde, self.make_acq, self.tracker = make_mde, make_acquisition, tracker
@@ -304,8 +329,8 @@ class MethodRun:
     def run(self) -> list[dict]:
         ctx, exp = self.ctx, self.ctx.exp
         its = range(self.state["completed"], exp.iterations)
-        bar = _tqdm(its, ctx.progress, desc=f"{self.method} seed {ctx.seed}", unit="it", initial=self.state["completed"],
-                    total=exp.iterations)
+        bar = tqdm(its, disable=not ctx.progress, desc=f"{self.method} seed {ctx.seed}", unit="it",
+                   initial=self.state["completed"], total=exp.iterations)
         for it in bar:
             row = self._iteration(it)
             self._save(it + 1)
@@ -313,7 +338,7 @@ class MethodRun:
                     f"{row['n_trajectories']} trajectories, {row['n_transitions']} transitions, "
                     f"test success {row['test_success']:.2f}, plans found {row['test_plan_found']:.2f}, "
                     f"{row['iteration_seconds']:.0f} s")
-            _write(line, ctx.progress)
+            tqdm.write(line)  # above the bars (printed with or without them)
             self.tracker.log({k: v for k, v in row.items() if isinstance(v, (int, float))}, step=it + 1)
         return self.state["results"]
 
@@ -470,20 +495,3 @@ def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):
         return partial(model=getattr(mde, "model", mde), **kw)
 
     return make
-
-
-def _tqdm(it, enabled: bool, **kw):
-    if not enabled:
-        return it
-    from tqdm.auto import tqdm
-
-    return tqdm(it, **kw)
-
-
-def _write(line: str, progress: bool) -> None:
-    if progress:
-        from tqdm.auto import tqdm
-
-        tqdm.write(line)
-    else:
-        print(line, flush=True)

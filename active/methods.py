@@ -5,9 +5,10 @@
 * ``active_cautious`` / ``active_mean`` / ``active_balanced``: the candidate that maximises the
   configured acquisition function (by default the paper's alpha with c = -0.1 / 0 / 0.1).
 
-The methods are specs in ``configs/methods.yaml`` (name -> ``_target_`` and its arguments), built with
-``hydra.utils.instantiate``: a new method is a YAML entry (and, for a new choice rule, a subclass of
-:class:`Method`). If the planner finds no candidate, a method falls back to random actions and the
+The methods are specs in the ``methods:`` node of the run config (``configs/methods/default.yaml``:
+name -> ``_target_`` and its arguments), built with ``hydra.utils.instantiate``: a new method is a YAML
+entry or an override (``methods.active_balanced.acquisition.c=0.2``, ``+methods.mine._target_=...``;
+for a new choice rule, a subclass of :class:`Method`). If the planner finds no candidate, a method falls back to random actions and the
 trajectory is marked ``fallback`` (recorded in categories.csv), so every iteration still collects data.
 """
 
@@ -15,14 +16,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
-from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import numpy as np
 import torch
 
-#: the registry of methods: name -> instantiable spec
-METHODS_FILE = Path(__file__).resolve().parents[1] / "configs" / "methods.yaml"
+import configs
+
+#: the shipped registry of methods (name -> instantiable spec), the ``methods:`` node a run gets by default
+METHODS_FILE = configs.path("methods", "default.yaml")
 
 
 @dataclass
@@ -82,17 +84,20 @@ class ActiveChoice(Method):
 
 @lru_cache(maxsize=1)
 def method_specs() -> dict[str, dict]:
-    """name -> spec, as ``configs/methods.yaml`` gives them."""
+    """name -> spec, as the shipped ``configs/methods/default.yaml`` gives them."""
     from omegaconf import OmegaConf
 
-    specs = OmegaConf.to_container(OmegaConf.load(METHODS_FILE), resolve=True)
-    if not isinstance(specs, dict) or not all(isinstance(v, dict) and "_target_" in v for v in specs.values()):
-        raise ValueError(f"{METHODS_FILE}: expected a mapping name -> {{_target_: ..., ...}}")
-    return specs
+    return _checked(OmegaConf.to_container(OmegaConf.load(METHODS_FILE), resolve=True), str(METHODS_FILE))
+
+
+def _checked(specs: Any, where: str) -> dict[str, dict]:
+    if not isinstance(specs, Mapping) or not all(isinstance(v, Mapping) and "_target_" in v for v in specs.values()):
+        raise ValueError(f"{where}: expected a mapping name -> {{_target_: ..., ...}}")
+    return {str(k): dict(v) for k, v in specs.items()}
 
 
 class _Names(Mapping):
-    """The method names (a read-only view of the registry, for membership tests and messages)."""
+    """The shipped method names (a read-only view of the registry, for membership tests and messages)."""
 
     def __getitem__(self, name: str) -> dict:
         return method_specs()[name]
@@ -107,17 +112,21 @@ class _Names(Mapping):
 METHODS: Mapping[str, dict] = _Names()
 
 
-def check_method(name: str) -> str:
-    if name not in METHODS:
-        raise ValueError(f"method = {name!r}: allowed one of {sorted(METHODS)} (configs/methods.yaml)")
+def check_method(name: str, registry: Mapping[str, Any] | None = None) -> str:
+    """``name`` if ``registry`` (default: the shipped one) has it, else an error naming the allowed ones."""
+    names = METHODS if registry is None else _checked(registry, "methods")
+    if name not in names:
+        raise ValueError(f"method = {name!r}: allowed one of {sorted(names)} (the methods: node, "
+                         "configs/methods/default.yaml)")
     return name
 
 
-def build_method(name: str) -> Method:
-    """The method ``name`` of ``configs/methods.yaml``, instantiated."""
+def build_method(name: str, registry: Mapping[str, Any] | None = None) -> Method:
+    """The method ``name`` of ``registry`` (a run's ``methods:`` node; default: the shipped one), instantiated."""
     from hydra.utils import instantiate
 
-    method = instantiate(METHODS[check_method(name)], _convert_="all")
+    specs = METHODS if registry is None else _checked(registry, "methods")
+    method = instantiate(dict(specs[check_method(name, specs)]), _convert_="all")
     if not isinstance(method, Method):
         raise ValueError(f"method {name!r}: {type(method).__name__} is not an active.methods.Method")
     return method

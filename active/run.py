@@ -20,6 +20,8 @@ import warnings
 from pathlib import Path
 from typing import Any, Mapping
 
+import configs
+
 # OpenMP threads that spin while waiting stall each other (and the simulator's threads) on small
 # machines shared with other jobs; passive waiting costs nothing measurable on an idle machine.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
@@ -61,8 +63,8 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     progress = bool(cfg.get("progress", True))
     exp, world, planner_cfg, workers = run_settings(cfg)
     make_acq = acquisition_factory(cfg["acquisition"], exp)
-    for m in exp.methods:  # configs/methods.yaml: every spec instantiates before any compute
-        build_method(m)
+    for m in exp.methods:  # the methods: node; every spec instantiates before any compute
+        build_method(m, cfg["methods"])
     mde_cfg = dict(cfg["mde"])
 
     def make_mde():
@@ -125,14 +127,15 @@ def run_settings(cfg: Mapping[str, Any]) -> tuple[Any, Any, Any, int]:
     from .loop import build_planner_config, planner_workers
     from .preflight import check_geometry
 
-    exp = ExperimentConfig.from_mapping(cfg["experiment"], method=str(cfg.get("method", "all")))
+    exp = ExperimentConfig.from_mapping(cfg["experiment"], method=str(cfg.get("method", "all")),
+                                       registry=cfg.get("methods"))
     world = WorldConfig.from_mapping(cfg["world"])
     check_geometry(world)
     planner_cfg = build_planner_config(world, cfg["planner"], exp)
     return exp, world, planner_cfg, planner_workers(cfg["planner"])
 
 
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+CONFIG_DIR = configs.CONFIG_DIR
 
 
 def compose_config(overrides: list[str] | None = None) -> dict:

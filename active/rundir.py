@@ -18,7 +18,7 @@ from typing import Any, Mapping
 
 import safeio
 
-from .io import RunFileError, describe_load_error, load_torch, save_torch
+from .io import RunFileError, as_json, describe_load_error, load_torch, save_torch
 from .runlock import RunDirectoryError
 
 log = logging.getLogger(__name__)
@@ -32,7 +32,7 @@ METHOD_FILES = ("results.csv", "categories.csv", "calibration.csv", "dataset.pt"
 # ------------------------------------------------------------------ digests
 def legacy_config_digest(cfg: Mapping[str, Any]) -> str:
     """The digest state.pt files got before the cache location was excluded (still accepted)."""
-    c = json.loads(json.dumps(cfg, default=str))
+    c = as_json(cfg)
     for k in ("iterations", "methods"):
         c.get("experiment", {}).pop(k, None)
     for k in ("wandb", "progress", "method"):
@@ -77,7 +77,7 @@ def upgrade_config(cfg: Mapping[str, Any]) -> dict:
     """
     from .loop import DERIVED_PLANNER_KEYS
 
-    c = json.loads(json.dumps(cfg, default=str))
+    c = as_json(cfg)
     p, w, e = c.get("planner"), c.get("world"), c.get("experiment")
     if not (isinstance(p, dict) and isinstance(p.get("problems"), dict) and isinstance(w, dict)
             and isinstance(e, dict)):
@@ -97,7 +97,7 @@ def upgrade_config(cfg: Mapping[str, Any]) -> dict:
         lo[1], hi[1] = min(lo[1], p["move_y"][0]), max(hi[1], p["move_y"][1])
         hi[2] = max(hi[2], p["pour_theta"][1])
     except (KeyError, TypeError, IndexError):  # not a complete configuration: nothing to match
-        return json.loads(json.dumps(cfg, default=str))
+        return as_json(cfg)
     p["state_low"], p["state_high"] = lo, hi
     return c
 
@@ -283,5 +283,5 @@ def save_calibration(path: Path, cal: Mapping[str, Any], cfg: Mapping[str, Any])
     from .loop import config_digest
 
     save_torch(path, {"format": CALIBRATION_FORMAT, "version": CALIBRATION_VERSION, "digest": config_digest(cfg),
-                      "config": json.loads(json.dumps(cfg, default=str)), "X": cal["X"], "y": cal["y"]})
+                      "config": as_json(cfg), "X": cal["X"], "y": cal["y"]})
     return {"X": cal["X"], "y": cal["y"]}

@@ -32,7 +32,7 @@ import torch
 
 from benchmarks._cli import report
 from planner.config import PlannerConfig
-from planner.rrt import Planner, _Evaluator, _torch_threads
+from planner.rrt import Planner, _Evaluator, torch_threads
 from task.problems import sample_problems
 from tests.doubles.standins import StandInGPMDE, StandInMLPDynamics, synthetic_deviation_dataset
 
@@ -68,7 +68,7 @@ def batch_throughput(dynamics: Any, mde: Any, config: PlannerConfig, sizes: Sequ
     ev = _Evaluator(dynamics, mde, Planner(dynamics, mde, config).sampler)
     rng = np.random.default_rng(0)
     out = {}
-    with _torch_threads(config.torch_threads):
+    with torch_threads(config.torch_threads):
         for k in sizes:
             s = np.tile([0.4, 0.1, 0.0, 1.0, 0.0], (k, 1))
             a = ev.sampler.sample(k, rng)

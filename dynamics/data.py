@@ -124,7 +124,7 @@ class Transitions:
         path.parent.mkdir(parents=True, exist_ok=True)
         payload = {"format": DATASET_FORMAT, "version": DATA_FORMAT_VERSION,
                    "arrays": {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in self.arrays().items()},
-                   "meta": json.dumps(self.meta, default=_json_default)}
+                   "meta": json.dumps(self.meta, default=safeio.json_default)}
         atomic_torch_save(payload, path)
         return path
 
@@ -176,7 +176,6 @@ def atomic_torch_save(obj: Any, path: Path) -> None:
     safeio.save_torch(path, obj)
 
 
-_json_default = safeio.json_default
 
 
 # ---------------------------------------------------------------------------------- sampling

@@ -39,6 +39,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+import safeio
+
 from .config import MODEL_FORMAT_VERSION, DynamicsError, ModelConfig
 
 CHECKPOINT_FORMAT = "active-mde/dynamics-checkpoint"
@@ -401,7 +403,7 @@ class LearnedDynamics(nn.Module):
                    "model_config": json.dumps({"hidden": list(self.cfg.hidden), "activation": self.cfg.activation,
                                                "min_pose_scale": self.cfg.min_pose_scale,
                                                "min_fraction_scale": self.cfg.min_fraction_scale}),
-                   "info": json.dumps(self.info, default=_json_default),
+                   "info": json.dumps(self.info, default=safeio.json_default),
                    "state_dict": {k: v.detach().clone() for k, v in self.state_dict().items()}}
         atomic_torch_save(payload, path)
         return path
@@ -426,13 +428,3 @@ class LearnedDynamics(nn.Module):
                                 f"{info.get('model_hash')}, expected {expected_hash}); {fix}")
         model.eval()
         return model
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.floating,)):
-        return float(o) if math.isfinite(float(o)) else str(float(o))
-    if isinstance(o, (np.ndarray, tuple)):
-        return list(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

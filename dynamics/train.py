@@ -28,6 +28,7 @@ from typing import Any, Callable, Iterator, Mapping
 import numpy as np
 import torch
 
+import configs
 import safeio
 from task import STATE_NAMES
 
@@ -37,7 +38,7 @@ from .data import MOVE, POUR, Transitions, load_world
 from .model import SKILLS, LearnedDynamics
 
 log = logging.getLogger(__name__)
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs" / "dynamics"
+CONFIG_DIR = configs.path("dynamics")
 
 Generator = Callable[..., Transitions]
 
@@ -55,16 +56,6 @@ def split_by_trajectory(traj: np.ndarray, val_fraction: float, seed: int) -> tup
     return np.flatnonzero(~val), np.flatnonzero(val)
 
 
-@contextlib.contextmanager
-def torch_threads(n: int) -> Iterator[None]:
-    prev = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(prev)
-
-
 def fit(ds: Transitions, model_cfg: ModelConfig | None = None, train_cfg: TrainConfig | None = None,
         progress: bool = False, world_cfg: Any = None) -> LearnedDynamics:
     """Train a fresh :class:`LearnedDynamics` on ``ds``; seeded and bit-reproducible on CPU.
@@ -76,6 +67,8 @@ def fit(ds: Transitions, model_cfg: ModelConfig | None = None, train_cfg: TrainC
     ``model.info["training"]`` gets the losses, epochs, wall time and validation errors.
     """
     from tqdm.auto import tqdm
+
+    from planner.rrt import torch_threads  # imported here: training needs no OMPL otherwise
 
     wcfg = load_world(DataConfig(), world_cfg)
     cup = wcfg.controlled_cup

@@ -44,7 +44,7 @@ from torch import Tensor
 
 import safeio
 
-from ._fast import KernelCache
+from .kernel_cache import KernelCache
 from .config import MDEConfig
 from .gp import (
     DTYPE,

@@ -14,7 +14,7 @@ from .config import PlannerConfig
 from .interfaces import ACTION_DIM, DeviationEstimator, DynamicsModel
 from .problems import validate_start
 from .results import Trajectory
-from .rrt import _Evaluator, _torch_threads
+from .rrt import _Evaluator, torch_threads
 from .sampling import ActionSampler
 
 
@@ -31,7 +31,7 @@ def rollout(dynamics: DynamicsModel, mde: DeviationEstimator | None, start, acti
     ev = _Evaluator(dynamics, mde, ActionSampler(config))
     states = [s]
     lo, hi = np.asarray(config.state_low), np.asarray(config.state_high)
-    with _torch_threads(config.torch_threads):
+    with torch_threads(config.torch_threads):
         for t in range(len(a)):
             nxt = ev.predict_next(states[-1][None], a[t:t + 1])[0]
             states.append(np.clip(nxt, lo, hi) if config.clip_to_bounds else nxt)

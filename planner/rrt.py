@@ -92,8 +92,9 @@ def _ompl_log(name: str) -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def _torch_threads(n: int | None) -> Iterator[None]:
-    """Run with ``n`` torch intra-op threads, restoring the previous setting afterwards."""
+def torch_threads(n: int | None) -> Iterator[None]:
+    """Run with ``n`` torch intra-op threads (None: leave the setting alone), restoring the previous
+    setting afterwards. The one copy outside ``mde`` (which stands alone): ``dynamics`` uses it too."""
     prev = torch.get_num_threads()
     if n is None or n == prev:
         yield
@@ -530,7 +531,7 @@ class Planner:
                                                  termination="unreachable", seed=seed_repr,
                                                  best_goal_distance=float(search.gdist[0])))
 
-        with _ompl_log(c.ompl_log_level), _torch_threads(c.torch_threads):
+        with _ompl_log(c.ompl_log_level), torch_threads(c.torch_threads):
             goal_node = self._solve_with_ompl(search, start, ompl_seed % (2**31 - 1) + 1)
         elapsed = time.perf_counter() - t0
         if search.error is not None:

@@ -60,6 +60,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
+import torch
 
 from .config import ConfigError
 from .diff_mpm import DiffMPM
@@ -422,10 +423,8 @@ def refine_pours(world_cfg: WorldConfig, params: np.ndarray, goals: np.ndarray, 
     span = np.where(hi > lo, hi - lo, 1.0)
     cols = [PARAMS.index(w) for w in wrt]
     objective = goal_objective(g, spill_weight)
-    u = (p0 - lo) / span
-    m = np.zeros_like(u)
-    s2 = np.zeros_like(u)
-    b1, b2, eps = 0.9, 0.999, 1e-8
+    u = torch.tensor(np.clip((p0 - lo) / span, 0.0, 1.0))  # normalised parameters (float64), stepped by Adam
+    opt = torch.optim.Adam([u], lr=lr, betas=(0.9, 0.999), eps=1e-8)
     best_p, best_loss = p0.copy(), np.full(B, np.inf)
     best_t, best_s = np.full(B, np.nan), np.full(B, np.nan)
     loss0 = np.full(B, np.nan)
@@ -437,7 +436,7 @@ def refine_pours(world_cfg: WorldConfig, params: np.ndarray, goals: np.ndarray, 
 
         it = tqdm(it, desc=f"refine {B} pours", unit="step")
     for k in it:
-        p = lo + np.clip(u, 0.0, 1.0) * span
+        p = lo + u.numpy() * span
         p[failed] = p0[failed]
         out = sim.value_and_grad(p, wrt=tuple(wrt), objective=objective, v_ctrl=v, horizon=horizon)
         grad = np.zeros_like(u)
@@ -461,10 +460,9 @@ def refine_pours(world_cfg: WorldConfig, params: np.ndarray, goals: np.ndarray, 
             it.set_postfix(loss=f"{np.nanmean(np.where(failed, np.nan, out.value)):.4f}")
         if k < steps:  # the last evaluation only scores the final step
             grad[failed] = 0.0
-            m = b1 * m + (1 - b1) * grad
-            s2 = b2 * s2 + (1 - b2) * grad**2
-            step = lr * (m / (1 - b1 ** (k + 1))) / (np.sqrt(s2 / (1 - b2 ** (k + 1))) + eps)
-            u = np.clip(u - step, 0.0, 1.0)
+            u.grad = torch.from_numpy(grad)
+            opt.step()
+            u.clamp_(0.0, 1.0)  # projected onto the skill ranges
     best_p[failed] = p0[failed]
     if pour_sim is None:
         sim.close()

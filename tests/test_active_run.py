@@ -67,6 +67,39 @@ def test_end_to_end_tiny_run_writes_everything(straight_run):
     assert (out / "config.json").exists()
 
 
+@pytest.mark.skipif(os.name != "posix", reason="the venv's interpreter path is POSIX-style here")
+def test_a_built_wheel_runs_the_tiny_experiment_outside_the_repository(cache, straight_run, tmp_path):
+    """The configs ship as package data and are found through the ``configs`` package: a wheel,
+    installed into a fresh virtual environment, runs the CLI from a folder that is not the repository
+    and gives the editable install's results (the dependencies come from this interpreter's site)."""
+    import tomllib
+
+    straight, _ = straight_run
+    src, wheels, venv, work = (tmp_path / d for d in ("src", "wheels", "venv", "elsewhere"))
+    src.mkdir(), work.mkdir()
+    # the project's files only: a build/ folder left in the checkout would put stale files into the wheel
+    packages = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"]["include"]
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy2(REPO / name, src / name)
+    for name in (p.rstrip("*") for p in packages):
+        shutil.copytree(REPO / name, src / name, ignore=shutil.ignore_patterns("__pycache__"))
+    quiet = dict(check=True, capture_output=True, text=True)
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w",
+                    str(wheels), str(src)], cwd=src, **quiet)
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", "--system-site-packages", str(venv)], **quiet)
+    py = str(venv / "bin" / "python")
+    subprocess.run([py, "-m", "pip", "install", "-q", "--no-deps", *map(str, wheels.glob("*.whl"))], **quiet)
+    where = subprocess.run([py, "-c", "import active, configs; print(active.__file__); print(configs.CONFIG_DIR)"],
+                           cwd=work, **quiet).stdout.split()
+    assert len(where) == 2 and all(w.startswith(str(venv)) for w in where), where  # the wheel, not the checkout
+    out = tmp_path / "run"
+    env = dict(os.environ, PYTHONWARNINGS="ignore")
+    env.pop("PYTHONPATH", None)
+    subprocess.run([py, "-m", "active.run", *tiny_overrides(cache), f"hydra.run.dir={out}"], cwd=work, env=env, **quiet)
+    for method in ("active_balanced", "random_actions"):
+        assert _comparable(out / method / "results.csv") == _comparable(straight / method / "results.csv")
+    assert (out / "report" / "learning_curves.png").stat().st_size > 0
+
 def test_resume_after_kill_gives_identical_results(cache, straight_run, tmp_path):
     """Kill the real CLI with SIGKILL once the first iteration is saved, start it again, compare."""
     straight, _ = straight_run

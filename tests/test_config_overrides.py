@@ -178,7 +178,7 @@ def test_documented_overrides_arrive():
     assert (pc.n_candidates, pc.propagation_budget) == (9, 20000)
     exp, _, pc, _ = settings(["experiment=tiny"])
     assert (pc.n_candidates, pc.propagation_budget, pc.time_budget) == (2, 500, 30.0)
-    # README: acquisitions are a config group; your own by _target_ (configs/acquisition/, configs/methods.yaml)
+    # README: acquisitions are a config group; your own by _target_ (configs/acquisition/, configs/methods/)
     for group in ("alpha", "lcb", "straddle", "variance"):
         assert compose_config([f"acquisition={group}"])["acquisition"]["_partial_"] is True
     assert compose_config(["acquisition=lcb"])["acquisition"]["_target_"] == "active.acquisition.DiscountedMaxLCB"
@@ -259,3 +259,41 @@ def test_a_run_directory_recorded_before_the_derived_keys_still_resumes():
     other = compose_config(["experiment=tiny", "experiment.candidates=3"])
     assert config_digest(old) not in accepted_digests(other, old)
     assert upgrade_config(new) == new
+
+
+def test_method_specs_are_config_and_arrive_in_the_method_a_run_builds(tmp_path):
+    """``methods:`` is part of the run config: an override of a method's c reaches the method object a
+    run chooses trajectories with, a new method can be added and selected, and a name that is not in
+    the node is refused before compute, naming the allowed ones."""
+    from types import SimpleNamespace
+
+    from active.loop import MethodRun
+    from active.methods import ActiveChoice, RandomPlan
+
+    def built(overrides: list[str], method: str):
+        cfg = compose_config(["experiment=tiny", *overrides])
+        _, _, pc, _ = run_settings(cfg)
+        ctx = SimpleNamespace(cfg=cfg, out=tmp_path, planner_cfg=pc, accepted_digests=frozenset())
+        return MethodRun(ctx, method, lambda: None, None, None).spec
+
+    assert built([], "active_balanced").acquisition == {"c": 0.1}
+    assert built(["methods.active_balanced.acquisition.c=0.25"], "active_balanced").acquisition == {"c": 0.25}
+    mine = ["+methods.mine._target_=active.methods.RandomPlan", "method=mine"]
+    assert settings(mine)[0].methods == ("mine",) and isinstance(built(mine, "mine"), RandomPlan)
+    assert isinstance(built([], "active_mean"), ActiveChoice)
+    with pytest.raises(ValueError, match=r"method = 'nope': allowed one of \['active_balanced'"):
+        settings(["method=nope"])
+    with pytest.raises(ValueError, match=r"'mine'"):  # experiment.methods names are checked against the node too
+        settings(["experiment.methods=[active_balanced,mine]"])
+
+
+def test_a_method_spec_enters_the_digest_only_when_it_differs_from_what_runs_had_before():
+    """Runs written before ``methods:`` was part of the config keep their digest; a changed spec of a
+    method the run executes changes it; a change to a method the run does not execute does not."""
+    base = compose_config(["experiment=tiny"])
+    legacy = {k: v for k, v in base.items() if k != "methods"}
+    assert config_digest(base) == config_digest(legacy)
+    assert config_digest(compose_config(["experiment=tiny", "methods.active_balanced.acquisition.c=0.2"])) != \
+        config_digest(base)
+    assert config_digest(compose_config(["experiment=tiny", "methods.active_mean.acquisition.c=0.2"])) == \
+        config_digest(base)  # tiny runs active_balanced and random_actions only

@@ -31,7 +31,7 @@ from torch import Tensor, nn
 
 from planner.config import PlannerConfig
 from planner.interfaces import FEATURE_DIM, SKILL_MOVE, SKILL_POUR, STATE_DIM, features
-from planner.rrt import _torch_threads
+from planner.rrt import torch_threads
 from planner.sampling import ActionSampler
 
 # -- analytic pouring stand-in ------------------------------------------------------------------
@@ -147,7 +147,7 @@ class StandInGPMDE:
 
     def fit(self, X, y) -> "StandInGPMDE":
         # small dense problems: one torch thread is faster and immune to busy-machine stalls
-        with _torch_threads(1):
+        with torch_threads(1):
             return self._fit(X, y)
 
     def _fit(self, X, y) -> "StandInGPMDE":

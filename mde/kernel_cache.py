@@ -6,9 +6,10 @@ thousands of (s, a) pairs per tree expansion. After ``fit`` the Cholesky factor 
 covariance and ``alpha = K^-1 (y - m)`` are computed once (float64) and cast to the prediction
 dtype; each call is then one kernel block, one triangular solve and a few reductions, done in
 chunks so that the ``chunk x n`` block stays in cache. The variances are exact (no LOVE /
-low-rank approximation); in float64 they match ``model.posterior`` to rounding (tested). The
-float32 path (default, ~2x faster) keeps the input map and the mean's accumulation in float64
-and was measured within ~2e-3 of float64 (mean: relative to the label std; std: relative).
+low-rank approximation); in float64 (the default, ``MDEConfig.predict_dtype``) they match
+``model.posterior`` to rounding (tested). The float32 path (~2x faster) keeps the input map and the
+mean's accumulation in float64 and is within ~2e-3 of float64 on synthetic data, but lost all
+precision on real simulator features (tests/test_mde_regressions.py), so it is opt-in only.
 """
 
 from __future__ import annotations
