@@ -494,4 +494,22 @@ def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):
             kw["d_max"] = exp.d_max
         return partial(model=getattr(mde, "model", mde), **kw)
 
+    named = {k for k, p in params.items() if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
+    make.accepts = frozenset(named - {"self", "model"})  # type: ignore[attr-defined]
+    make.target = cfg["_target_"]  # type: ignore[attr-defined]
     return make
+
+
+def check_method_acquisition(name: str, method: Any, make_acquisition: Any) -> None:
+    """Refuse, before compute, a method's acquisition keyword that no acquisition takes (a typo would
+    otherwise do nothing). A keyword of another built-in acquisition (the paper's ``c`` with
+    ``acquisition=variance``) is allowed: the configured one ignores it, as documented."""
+    from .acquisition import ACQUISITIONS
+
+    kwargs = set(getattr(method, "acquisition", None) or {})
+    built_in = {k for cls in ACQUISITIONS.values() for k, p in inspect.signature(cls.__init__).parameters.items()
+                if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
+    unknown = sorted(kwargs - set(make_acquisition.accepts) - built_in)
+    if unknown:
+        raise ValueError(f"methods.{name}.acquisition: {unknown} is a parameter of no acquisition; "
+                         f"{make_acquisition.target} takes {sorted(make_acquisition.accepts)}")

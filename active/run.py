@@ -47,7 +47,7 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     from task.problems import sample_problems
 
     from .io import write_json
-    from .loop import Context, MethodRun, acquisition_factory, derive_seed, make_calibration_set
+    from .loop import Context, MethodRun, acquisition_factory, check_method_acquisition, derive_seed, make_calibration_set
     from .methods import build_method
     from .preflight import check_dynamics, check_seed, check_writable
     from .report import report
@@ -63,8 +63,8 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     progress = bool(cfg.get("progress", True))
     exp, world, planner_cfg, workers = run_settings(cfg)
     make_acq = acquisition_factory(cfg["acquisition"], exp)
-    for m in exp.methods:  # the methods: node; every spec instantiates before any compute
-        build_method(m, cfg["methods"])
+    for m in exp.methods:  # the methods: node; every spec instantiates, and fits the acquisition, before compute
+        check_method_acquisition(m, build_method(m, cfg["methods"]), make_acq)
     mde_cfg = dict(cfg["mde"])
 
     def make_mde():

@@ -130,7 +130,8 @@ def test_unknown_keys_are_refused_naming_the_key_and_the_allowed_ones():
 
 def test_unknown_keys_fail_before_any_compute(tmp_path):
     base = ["experiment=tiny", "wandb.mode=disabled", "progress=false", f"dynamics.cache_root={tmp_path / 'cache'}"]
-    for bad in ("+planner.bogus=1", "+planner.beta=1.0", "planner.n_candidates=7", "+experiment.bogus=1"):
+    for bad in ("+planner.bogus=1", "+planner.beta=1.0", "planner.n_candidates=7", "+experiment.bogus=1",
+                "+methods.active_balanced.acquisition.cc=0.2", "method=nope"):
         with pytest.raises(ValueError):
             run_experiment(compose_config(base + [bad]), tmp_path / "out")
     assert not (tmp_path / "out").exists() and not (tmp_path / "cache").exists()
