@@ -260,8 +260,11 @@ def test_forward_agrees_with_production_on_emptying_pours(cfg, pour_params):
 @pytest.mark.xfail(strict=True, reason=(
     "open discrepancy since the session-5 water model (ppc 9, ghost wall mass, volume_relax 0.05 s): "
     "diff 0.746 / 0.314 / 0.543 / 0.984 against production 0.813 / 0.365 / 0.590 / 0.984 (up to 0.067); "
-    "systematic, not scatter: below all 16 production slots on the three partial pours, 2.3-4.5 slot stds "
-    "(benchmarks/diff_partial_agreement.json); still there with the shared physics (sim/physics.py)"))
+    "systematic, not scatter (below all 16 production slots, benchmarks/diff_partial_agreement.json). Cause "
+    "found in session 7: the box collider normal (analytic here, a central difference over 0.1 dx in "
+    "production). Either solver with the other's rule agrees (diff 0.813 / 0.365 / 0.590 / 0.978), but "
+    "production's rule costs the f64 rollouts their smoothness (the gradient tests lose every checkable "
+    "case); the fix is production -> analytic normals with a regenerated dataset (BENCHMARKS.md, session 7)"))
 def test_forward_agrees_with_production_on_partial_pours(cfg):
     """Partial pours, the steep part of the outcome. Measured after both solvers got the volume
     correction (sim.volume_correction): 0.757 vs 0.786, 0.336 vs 0.357, 0.514 vs 0.557, 0.929 vs
