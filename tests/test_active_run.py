@@ -100,6 +100,7 @@ def test_a_built_wheel_runs_the_tiny_experiment_outside_the_repository(cache, st
         assert _comparable(out / method / "results.csv") == _comparable(straight / method / "results.csv")
     assert (out / "report" / "learning_curves.png").stat().st_size > 0
 
+
 def test_resume_after_kill_gives_identical_results(cache, straight_run, tmp_path):
     """Kill the real CLI with SIGKILL once the first iteration is saved, start it again, compare."""
     straight, _ = straight_run
