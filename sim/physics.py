@@ -104,7 +104,7 @@ def box_sdf(q, half, real: ti.template()):
     That difference is why the two solvers' partial pours differ by 0.05 (the strict xfail of
     tests/test_sim_diff.py; BENCHMARKS.md, session 7): the f64 solver with production's rule agrees,
     but its rollouts lose their smoothness at the finite-difference scale, so it keeps these
-    (production with this normal: branch ``normals``, not merged; BENCHMARKS.md, session 7).
+    (production with this normal: branch ``normals``, not yet merged; BENCHMARKS.md, session 7).
     """
     a = ti.abs(q) - half
     sx = 1.0 if q[0] >= 0 else -1.0

@@ -264,8 +264,8 @@ def test_forward_agrees_with_production_on_emptying_pours(cfg, pour_params):
     "found in session 7: the box collider normal (analytic here, a central difference over 0.1 dx in "
     "production). Either solver with the other's rule agrees (diff 0.813 / 0.365 / 0.590 / 0.978), but "
     "production's rule costs the f64 rollouts their smoothness (the gradient tests lose every checkable "
-    "case). Production with the analytic normal (branch `normals`, dataset regenerated) passes this test, "
-    "but its ladder's source-world success fell 0.63 -> 0.37: not merged (BENCHMARKS.md, session 7)"))
+    "case). Production with the analytic normal (branch `normals`, dataset regenerated) passes this test; its "
+    "ladder is within the model-seed spread of this one; not merged until remeasured (BENCHMARKS.md, session 7)"))
 def test_forward_agrees_with_production_on_partial_pours(cfg):
     """Partial pours, the steep part of the outcome. Measured after both solvers got the volume
     correction (sim.volume_correction): 0.757 vs 0.786, 0.336 vs 0.357, 0.514 vs 0.557, 0.929 vs
