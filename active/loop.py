@@ -494,8 +494,7 @@ def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):
             kw["d_max"] = exp.d_max
         return partial(model=getattr(mde, "model", mde), **kw)
 
-    named = {k for k, p in params.items() if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
-    make.accepts = frozenset(named - {"self", "model"})  # type: ignore[attr-defined]
+    make.accepts = _keywords(cls) - {"model"}  # type: ignore[attr-defined]
     make.target = cfg["_target_"]  # type: ignore[attr-defined]
     return make
 
@@ -507,9 +506,14 @@ def check_method_acquisition(name: str, method: Any, make_acquisition: Any) -> N
     from .acquisition import ACQUISITIONS
 
     kwargs = set(getattr(method, "acquisition", None) or {})
-    built_in = {k for cls in ACQUISITIONS.values() for k, p in inspect.signature(cls.__init__).parameters.items()
-                if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
+    built_in = set().union(*(_keywords(cls) for cls in ACQUISITIONS.values()))
     unknown = sorted(kwargs - set(make_acquisition.accepts) - built_in)
     if unknown:
         raise ValueError(f"methods.{name}.acquisition: {unknown} is a parameter of no acquisition; "
                          f"{make_acquisition.target} takes {sorted(make_acquisition.accepts)}")
+
+
+def _keywords(cls: type) -> frozenset[str]:
+    """The named parameters of ``cls``'s constructor (not ``self``, ``*args`` or ``**kwargs``)."""
+    params = inspect.signature(cls.__init__).parameters.items()
+    return frozenset(k for k, p in params if k != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD))

@@ -8,8 +8,8 @@
 The methods are specs in the ``methods:`` node of the run config (``configs/methods/default.yaml``:
 name -> ``_target_`` and its arguments), built with ``hydra.utils.instantiate``: a new method is a YAML
 entry or an override (``methods.active_balanced.acquisition.c=0.2``, ``+methods.mine._target_=...``;
-for a new choice rule, a subclass of :class:`Method`). If the planner finds no candidate, a method falls back to random actions and the
-trajectory is marked ``fallback`` (recorded in categories.csv), so every iteration still collects data.
+for a new choice rule, a subclass of :class:`Method`). If the planner finds no candidate, a method falls
+back to random actions and the trajectory is marked ``fallback`` (recorded in categories.csv), so every iteration still collects data.
 """
 
 from __future__ import annotations
