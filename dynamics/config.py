@@ -315,7 +315,8 @@ def solver_dict(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
 #: solver settings added after datasets were cached, with the value that switches their term off: at that
 #: value the solver's numbers are bit-identical to those of the code before the setting existed
 #: (tests/test_sim_solver.py), so they are left out of the data hash and older caches stay valid
-NEUTRAL_SOLVER_SETTINGS = {"viscosity": 0.0, "stretch_relax": 0.0, "boundary_density": False}
+NEUTRAL_SOLVER_SETTINGS = {"viscosity": 0.0, "stretch_relax": 0.0, "boundary_density": False,
+                           "box_normals": "central"}  # the rule before the setting existed
 
 
 def _digest(obj: Any) -> str:
@@ -334,6 +335,9 @@ def data_hash(cfg: DynamicsConfig, world_cfg: Any = None) -> str:
     d.pop("world")
     world = world_dict(cfg.data, world_cfg)
     world.pop("plant")
+    for k, off in NEUTRAL_SOLVER_SETTINGS.items():  # as solver_dict: a setting at its "before" value is no change
+        if world.get("sim", {}).get(k) == off:
+            world["sim"].pop(k)
     return _digest({"format": DATA_FORMAT_VERSION, "data": d, "world": world,
                     "solver": solver_dict(cfg.data, world_cfg)})
 

@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass, fields
 from typing import Any, Mapping
 
 ARCHES = ("cpu", "gpu", "auto")
+BOX_NORMALS = ("analytic", "central")
 
 
 class ConfigError(ValueError):
@@ -54,6 +55,11 @@ class SimConfig:
     #: layers next to walls pack denser than the bulk and keep it (8 cm of water at rest sinks 7 % instead of
     #: 2 %, tests/test_sim_solver.py), and how much packs depends on the water's history
     boundary_density: bool = False
+    #: outward normal of a box collider where water is inside it (projection, velocity boundary rule):
+    #: "analytic" = the nearest face's (physics.box_sdf; both solvers); "central" = a central difference
+    #: of the distance over 0.1 dx, the production rule until session 7. They differ near a box's medial
+    #: axis (a cup's lip corner): partial pours move by about 0.05, their scatter does not (BENCHMARKS.md)
+    box_normals: str = "analytic"
     ppc: int = 4  # particles per cell at rest (must be k**dim)
     n_envs: int = 1  # B, independent environments sharing one set of fields
     max_particles: int = 1024  # per environment
@@ -115,6 +121,7 @@ class SimConfig:
             need(isinstance(getattr(self, name), int) and getattr(self, name) >= 1, name, "an integer >= 1")
         need(isinstance(self.wall_cells, int) and self.wall_cells >= 2, "wall_cells", "an integer >= 2")
         need(self.arch in ARCHES, "arch", f"one of {ARCHES}")
+        need(self.box_normals in BOX_NORMALS, "box_normals", f"one of {BOX_NORMALS}")
         res = self.res
         need(all(r >= 2 * self.wall_cells + 4 for r in res), "dx",
              f"small enough for >= {2 * self.wall_cells + 4} cells per axis (domain {self.domain})")

@@ -182,6 +182,10 @@ class DifferentiablePour:
             raise ConfigError(f"checkpoint_every = {checkpoint_every!r}: allowed an integer >= 1 (substeps)")
         self.K = int(min(K, self.max_substeps))
         sc = cfg.sim_config(1)
+        if sc.box_normals != "analytic":
+            raise ConfigError(f"sim.box_normals = {sc.box_normals!r}: the differentiable solver allows only "
+                              "'analytic' (a central-difference normal makes its rollouts non-smooth at the "
+                              "finite-difference scale; BENCHMARKS.md, session 7)")
         self.dx, self.ppc, self.seed, self.jitter = sc.dx, sc.ppc, sc.seed, sc.jitter
         self._local_water = self._sample_local(1.0)
         self.N = max(len(w) for w in self._local_water)

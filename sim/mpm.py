@@ -44,6 +44,12 @@ def _not_finite(v):
     return (ti.bit_cast(v, ti.u32) & ti.u32(0x7F800000)) == ti.u32(0x7F800000)
 
 
+@ti.func
+def _rotate(v, cs):
+    """v rotated by the angle whose (cos, sin) is cs: a frame's vector in its parent frame."""
+    return ti.Vector([cs[0] * v[0] - cs[1] * v[1], cs[1] * v[0] + cs[0] * v[1]])
+
+
 @ti.data_oriented
 class MPMSolver:
     """B environments of MLS-MPM water; see the module docstring for the model."""
@@ -357,7 +363,7 @@ class MPMSolver:
         kind = self.shape_kind[b, s]
         phi = 0.0
         if kind == 0:  # box
-            phi, _ = box_sdf(q, size, ti.f32)  # normals: central differences in _normal_and_velocity
+            phi, _ = box_sdf(q, size, ti.f32)  # the normal: _normal_and_velocity (sim.box_normals)
         elif kind == 1:  # capsule along local x
             cx = ti.math.clamp(q[0], -size[0], size[0])
             phi = ti.Vector([q[0] - cx, q[1]]).norm() - size[1]
@@ -419,13 +425,21 @@ class MPMSolver:
                     n[d] = 1.0 if w % 2 == 0 else -1.0
         else:
             if ti.static(self.dim == 2):
-                h = 0.1 * self.cfg.dx
-                for d in ti.static(range(2)):
-                    e = ti.Vector.zero(ti.f32, 2)
-                    e[d] = h
-                    n[d] = self._shape_sdf(b, idx, p + e) - self._shape_sdf(b, idx, p - e)
-                n = n / ti.max(n.norm(), 1e-12)
                 k = self.shape_body[b, idx]
+                is_box = self.shape_kind[b, idx] == 0
+                if ti.static(self.cfg.box_normals == "analytic") and is_box:  # physics.box_sdf's, as the f64 solver
+                    q = self._to_body(b, k, p) - self.shape_c[b, idx]
+                    cs = self.shape_cs[b, idx]
+                    _, nl = box_sdf(ti.Vector([cs[0] * q[0] + cs[1] * q[1], -cs[1] * q[0] + cs[0] * q[1]]),
+                                    self.shape_size[b, idx], ti.f32)
+                    n = _rotate(_rotate(nl, cs), self.body_cs[b, k])  # shape frame -> body -> world
+                else:  # capsule, ellipse (and boxes with box_normals=central): central difference over 0.1 dx
+                    h = 0.1 * self.cfg.dx
+                    for d in ti.static(range(2)):
+                        e = ti.Vector.zero(ti.f32, 2)
+                        e[d] = h
+                        n[d] = self._shape_sdf(b, idx, p + e) - self._shape_sdf(b, idx, p - e)
+                    n = n / ti.max(n.norm(), 1e-12)
                 r = p - self.body_pos[b, k]
                 w = self.body_omega[b, k]
                 vc = self.body_vel[b, k] + ti.Vector([-w * r[1], w * r[0]])

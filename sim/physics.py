@@ -98,13 +98,11 @@ def box_sdf(q, half, real: ti.template()):
 
     Branches rather than the branch-free |max(a, 0)| + min(max_d a_d, 0) so that the outside
     distance can floor its square-root argument (finite adjoint on the surface); the distance is the
-    same bits wherever |max(a, 0)|^2 >= 1e-30 (inside sqrt(0) + x = x, outside x + 0 = x). The
-    production solver uses only the distance: its normals are a central difference of the distance
-    over 0.1 dx, equal to these away from a box's medial axis but not near it (a cup's lip corner).
-    That difference is why the two solvers' partial pours differ by 0.05 (the strict xfail of
-    tests/test_sim_diff.py; BENCHMARKS.md, session 7): the f64 solver with production's rule agrees,
-    but its rollouts lose their smoothness at the finite-difference scale, so it keeps these
-    (production with this normal: branch ``normals``, not yet merged; BENCHMARKS.md, session 7).
+    same bits wherever |max(a, 0)|^2 >= 1e-30 (inside sqrt(0) + x = x, outside x + 0 = x). Both
+    solvers use this normal (``sim.box_normals = "analytic"``). The production solver's earlier rule,
+    a central difference of the distance over 0.1 dx (``"central"``), differs near a box's medial axis
+    (a cup's lip corner) and moved partial pours by 0.05; in the f64 solver it also made rollouts
+    non-smooth at the finite-difference scale (BENCHMARKS.md, session 7).
     """
     a = ti.abs(q) - half
     sx = 1.0 if q[0] >= 0 else -1.0

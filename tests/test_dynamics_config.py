@@ -105,3 +105,15 @@ def test_world_given_as_object_or_mapping_overrides_the_file():
     w["skills"]["max_actions"] = 9
     with pytest.raises(DynamicsError, match="not a valid world config"):
         data_hash(c, w)
+
+
+def test_a_solver_setting_at_its_earlier_rule_keeps_the_earlier_data_hash():
+    """sim.box_normals=central is the collider rule before the setting existed (session 7): the default
+    world with it hashes as the default world did then (the data hash of session 6's shipped dataset),
+    so a dataset cached or shipped then stays valid for it; the analytic default is a new dataset."""
+    from sim.world import DEFAULT_CONFIG
+
+    w = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    central = {**w, "sim": {**w["sim"], "box_normals": "central"}}
+    assert data_hash(DynamicsConfig(), central) == "8133e0301c47e02e"
+    assert data_hash(DynamicsConfig(), w) != "8133e0301c47e02e"

@@ -257,23 +257,23 @@ def test_forward_agrees_with_production_on_emptying_pours(cfg, pour_params):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=(
-    "open discrepancy since the session-5 water model (ppc 9, ghost wall mass, volume_relax 0.05 s): "
-    "diff 0.746 / 0.314 / 0.543 / 0.984 against production 0.813 / 0.365 / 0.590 / 0.984 (up to 0.067); "
-    "systematic, not scatter (below all 16 production slots, benchmarks/diff_partial_agreement.json). Cause "
-    "found in session 7: the box collider normal (analytic here, a central difference over 0.1 dx in "
-    "production). Either solver with the other's rule agrees (diff 0.813 / 0.365 / 0.590 / 0.978), but "
-    "production's rule costs the f64 rollouts their smoothness (the gradient tests lose every checkable "
-    "case). Production with the analytic normal (branch `normals`, dataset regenerated) passes this test; its "
-    "ladder is within the model-seed spread of this one; not merged until remeasured (BENCHMARKS.md, session 7)"))
 def test_forward_agrees_with_production_on_partial_pours(cfg):
-    """Partial pours, the steep part of the outcome. Measured after both solvers got the volume
-    correction (sim.volume_correction): 0.757 vs 0.786, 0.336 vs 0.357, 0.514 vs 0.557, 0.929 vs
-    0.971 (diff vs prod); tolerance 0.05 (7 of 140 particles)."""
+    """Partial pours, the steep part of the outcome; tolerance 0.05 (7 of 140 particles). A strict xfail
+    from session 5 to 7: production's box normals were a central difference (sim.box_normals=central),
+    and its partial pours 0.05 fuller than the differentiable solver's, below all 16 production slots
+    (BENCHMARKS.md, session 7). Both now take the analytic normal."""
     pours = np.array([[0.3137, 0.1433, 1.5, 0.5], [0.3137, 0.1433, 1.3, 1.0], [0.3037, 0.1633, 1.4, 0.3],
                       [0.3437, 0.1633, 1.6, 0.2]])
     prod, diff = _both(cfg, pours)
     assert np.all(np.abs(diff - prod) <= 0.05), (diff, prod)
+
+
+def test_the_central_difference_box_normal_is_refused_before_compute(cfg):
+    central = WorldConfig.from_mapping({**cfg.__dict__, "sim": dict(cfg.sim, box_normals="central"),
+                                        "controlled_cup": cfg.controlled_cup.__dict__,
+                                        "target_cup": cfg.target_cup.__dict__})
+    with pytest.raises(ConfigError, match=r"sim.box_normals = 'central': the differentiable solver allows only"):
+        DifferentiablePour(central, 1)
 
 
 @pytest.mark.slow  # its own adjoint compile (about 40 s); ghost mass is also in every default-world test above
