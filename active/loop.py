@@ -22,7 +22,7 @@ import time
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Generator, Mapping
 
 import numpy as np
 import torch
@@ -246,16 +246,58 @@ def label_transitions(dynamics: Any, s: np.ndarray, a: np.ndarray, s_next: np.nd
     return state_distance(pred.double().numpy(), s_next, weights)
 
 
-def execute_padded(ctx: Context, problems: list[Problem], actions: list[np.ndarray], batch: int) -> list:
-    """Run trajectories in the target world in a batch of exactly ``batch`` environments (padded)."""
-    n = len(problems)
-    assert n <= batch
-    pad = batch - n
-    starts = np.array([p.start[:3] for p in problems] + [problems[0].start[:3]] * pad)
-    jit = np.array([p.plant_jitter for p in problems] + [problems[0].plant_jitter] * pad)
-    goals = [p.goal for p in problems] + [problems[0].goal] * pad
-    res = ctx.executor.run("target", starts, list(actions) + [NOOP] * pad, plant_jitter=jit, goals=goals)
-    return res[:n]
+@dataclass
+class PlanNeed:
+    """Planner calls a run waits for, all with one MDE (None: the model alone)."""
+
+    requests: list[PlanRequest]
+    mde: Any
+
+
+@dataclass
+class SimNeed:
+    """Trajectories a run waits for: executed in the target world, in a batch of ``batch`` environments
+    when the run is alone (padded with do-nothing trajectories, so that batch sizes and compiled
+    solvers stay fixed); environment k samples its water as slot k of that batch."""
+
+    problems: list[Problem]
+    actions: list[np.ndarray]
+    batch: int
+
+
+def execute_needs(executor: PouringExecutor, needs: list[SimNeed]) -> list[list]:
+    """Every need's trajectories in one target-world simulation; ``out[i]`` are ``needs[i]``'s results.
+
+    Each trajectory keeps the particle-sampling slot it has when its run executes alone, and the
+    environments of a batch do not interact, so a run's results do not depend on what else is in the
+    batch (bit for bit on the CPU). The batch is padded to the sum of the needs' sizes.
+    """
+    probs = [p for n in needs for p in n.problems]
+    if not probs:
+        return [[] for _ in needs]
+    for n in needs:
+        if len(n.problems) != len(n.actions) or len(n.problems) > n.batch:
+            raise ValueError(f"SimNeed: {len(n.problems)} problems, {len(n.actions)} action sequences, batch {n.batch}")
+    actions = [a for n in needs for a in n.actions]
+    slots = [k for n in needs for k in range(len(n.problems))]
+    pad = sum(n.batch for n in needs) - len(probs)
+    slots += range(len(probs), len(probs) + pad)  # alone: the pads' own slots; batched: unused by any run
+    starts = np.array([p.start[:3] for p in probs] + [probs[0].start[:3]] * pad)
+    jit = np.array([p.plant_jitter for p in probs] + [probs[0].plant_jitter] * pad)
+    goals = [p.goal for p in probs] + [probs[0].goal] * pad
+    res = executor.run("target", starts, actions + [NOOP] * pad, plant_jitter=jit, goals=goals, slots=slots)
+    out, i = [], 0
+    for n in needs:
+        out.append(res[i:i + len(n.problems)])
+        i += len(n.problems)
+    return out
+
+
+def serve_alone(ctx: Context, need: PlanNeed | SimNeed) -> list:
+    """What a run waiting for ``need`` gets when it runs by itself."""
+    if isinstance(need, PlanNeed):
+        return ctx.planner_pool().run(need.requests, need.mde, errors="record")
+    return execute_needs(ctx.executor, [need])[0]
 
 
 def make_calibration_set(world: WorldConfig, dynamics: Any, executor: PouringExecutor, sampler: ActionSampler,
@@ -326,25 +368,49 @@ class MethodRun:
         save_torch(self.dir / "state.pt", self.state)  # last: it marks the iteration as complete
 
     # ------------------------------------------------------------------ the loop
+    @property
+    def completed(self) -> int:
+        """Iterations finished (and saved)."""
+        return int(self.state["completed"])
+
     def run(self) -> list[dict]:
         ctx, exp = self.ctx, self.ctx.exp
-        its = range(self.state["completed"], exp.iterations)
+        its = range(self.completed, exp.iterations)
         bar = tqdm(its, disable=not ctx.progress, desc=f"{self.method} seed {ctx.seed}", unit="it",
-                   initial=self.state["completed"], total=exp.iterations)
+                   initial=self.completed, total=exp.iterations)
         for it in bar:
-            row = self._iteration(it)
-            self._save(it + 1)
-            line = (f"[{self.method} seed {ctx.seed}] iteration {it + 1}/{exp.iterations}: "
-                    f"{row['n_trajectories']} trajectories, {row['n_transitions']} transitions, "
-                    f"test success {row['test_success']:.2f}, plans found {row['test_plan_found']:.2f}, "
-                    f"{row['iteration_seconds']:.0f} s")
-            tqdm.write(line)  # above the bars (printed with or without them)
-            self.tracker.log({k: v for k, v in row.items() if isinstance(v, (int, float))}, step=it + 1)
+            ctx.planner_pool().start()  # worker start-up (first iteration of a run only) is not planning time
+            steps = self.iteration_steps(it)
+            need = next(steps)
+            while True:
+                try:
+                    need = steps.send(serve_alone(ctx, need))
+                except StopIteration as done:
+                    row = done.value
+                    break
+            self.finish_iteration(it, row)
         return self.state["results"]
 
-    def _iteration(self, it: int) -> dict:
+    def finish_iteration(self, it: int, row: dict) -> None:
+        """Save iteration ``it`` (atomically; it is complete from here on), print its line, log it."""
+        self._save(it + 1)
+        line = (f"[{self.method} seed {self.ctx.seed}] iteration {it + 1}/{self.ctx.exp.iterations}: "
+                f"{row['n_trajectories']} trajectories, {row['n_transitions']} transitions, "
+                f"test success {row['test_success']:.2f}, plans found {row['test_plan_found']:.2f}, "
+                f"{row['iteration_seconds']:.0f} s")
+        tqdm.write(line)  # above the bars (printed with or without them)
+        self.tracker.log({k: v for k, v in row.items() if isinstance(v, (int, float))}, step=it + 1)
+
+    def iteration_steps(self, it: int) -> Generator[PlanNeed | SimNeed, list, dict]:
+        """Iteration ``it`` as a generator: it yields what it waits for (planner calls, simulations),
+        receives their results, and returns the iteration's row of ``results.csv``. Who serves the
+        needs, alone (:meth:`run`) or batched with other runs (:func:`active.lockstep.run_lockstep`),
+        changes no result: every need's result is determined by the need itself.
+
+        Times are the wall time of the calls the run waited for: in lockstep, calls shared by all
+        runs of the round.
+        """
         ctx, exp = self.ctx, self.ctx.exp
-        ctx.planner_pool().start()  # worker start-up (first iteration of a run only) is not planning time
         t_start = time.perf_counter()
         beta = exp.beta(it)
         problems = sample_problems(ctx.world, exp.trajectories_per_iteration, derive_seed(ctx.seed, "train", it),
@@ -356,12 +422,12 @@ class MethodRun:
         for c0 in range(0, len(problems), exp.refit_every):
             chunk = problems[c0:c0 + exp.refit_every]
             tp = time.perf_counter()
-            cand_sets = self._plan_chunk(chunk, plan_mde, it, c0, beta)  # one pool call per chunk
+            cand_sets = yield from self._plan_chunk(chunk, plan_mde, it, c0, beta)  # one planning batch per chunk
             choices = [self._choose(prob, cands, it, c0 + j)
                        for j, (prob, cands) in enumerate(zip(chunk, cand_sets))]
             t_plan += time.perf_counter() - tp
             ts = time.perf_counter()
-            results = execute_padded(ctx, chunk, [c.actions for c in choices], exp.refit_every)
+            results = yield SimNeed(chunk, [c.actions for c in choices], exp.refit_every)
             t_sim += time.perf_counter() - ts
             for j, (prob, ch, r) in enumerate(zip(chunk, choices, results)):
                 fallbacks += ch.source == "fallback"
@@ -384,7 +450,7 @@ class MethodRun:
                 plan_mde = self.mde
             t_fit += time.perf_counter() - tf
         tt = time.perf_counter()
-        success, found = self._test(plan_mde, it)
+        success, found = yield from self._test(plan_mde, it)
         t_test = time.perf_counter() - tt
         self._calibrate(it)
         row = {"method": self.method, "seed": ctx.seed, "iteration": it + 1,
@@ -397,15 +463,15 @@ class MethodRun:
         self.state["results"].append(row)
         return row
 
-    def _plan_chunk(self, chunk: list[Problem], mde: Any, it: int, c0: int, beta: float) -> list:
-        """Candidate sets of the chunk's problems (problem k = c0 + j), planned in one pool call."""
+    def _plan_chunk(self, chunk: list[Problem], mde: Any, it: int, c0: int, beta: float):
+        """Candidate sets of the chunk's problems (problem k = c0 + j), planned in one batch."""
         ctx, exp = self.ctx, self.ctx.exp
         if not self.spec.plans:  # e.g. random_actions
             return [None] * len(chunk)
         reqs = [PlanRequest("candidates", prob.start, prob.goal, n=exp.candidates, beta=beta, d_max=exp.d_max,
                             seed=derive_seed(ctx.seed, self.method, "plan", it, c0 + j))
                 for j, prob in enumerate(chunk)]
-        sets = ctx.planner_pool().run(reqs, mde, errors="record")
+        sets = yield PlanNeed(reqs, mde)
         self.plan_errors += sum(r.stats.termination == "error" for s in sets for r in s.runs)
         return sets
 
@@ -424,25 +490,26 @@ class MethodRun:
             return RandomPlan().choose(trajs, rng, random_actions)
         return self.spec.choose(trajs, rng, random_actions, lambda kw: self.make_acq(self.mde, kw))
 
-    def _test(self, mde: Any, it: int) -> tuple[float, float]:
+    def _test(self, mde: Any, it: int):
+        """Plan the test problems with beta_test, execute the plans found; returns (success, found) rates."""
         ctx, exp = self.ctx, self.ctx.exp
         reqs = [PlanRequest("plan", prob.start, prob.goal, beta=exp.beta_test, d_max=exp.d_max,
                             seed=derive_seed(ctx.seed, "test-plan", it, k)) for k, prob in enumerate(ctx.test_problems)]
-        found = ctx.planner_pool().run(reqs, mde, errors="record")  # a failed plan counts as not found
+        found = yield PlanNeed(reqs, mde)  # a failed plan counts as not found
         self.plan_errors += sum(res.stats.termination == "error" for res in found)
         plans = [res.trajectory if res.found else None for res in found]
         idx = [k for k, p in enumerate(plans) if p is not None]
         success = refined = 0
         if idx:
             probs = [ctx.test_problems[k] for k in idx]
-            results = execute_padded(ctx, probs, [plans[k].actions for k in idx], len(ctx.test_problems))
+            results = yield SimNeed(probs, [plans[k].actions for k in idx], len(ctx.test_problems))
             success = sum(bool(r.goal_reached) for r in results)
             if exp.refine_steps:
                 from .refine import refine_plans
 
                 ref = refine_plans(ctx.world, [plans[k] for k in idx], [p.goal for p in probs], steps=exp.refine_steps,
                                    lr=exp.refine_lr, progress=ctx.progress)
-                results = execute_padded(ctx, probs, ref.actions, len(ctx.test_problems))
+                results = yield SimNeed(probs, list(ref.actions), len(ctx.test_problems))
                 refined = sum(bool(r.goal_reached) for r in results)
         n = len(ctx.test_problems)
         self.last_refined_success = refined / n if exp.refine_steps else None

@@ -2,6 +2,7 @@
 
 ``mode`` is ``offline`` by default (runs sync later with ``wandb sync``), ``online`` to stream, and
 ``disabled`` for tests. Any W&B failure is logged once as a warning and logging turns itself off.
+Each (method, seed) is its own W&B run; the lockstep runner keeps several open at once (``reinit="create_new"``).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ class Tracker:
             os.environ.setdefault("WANDB_SILENT", "true")
             self._wandb = wandb
             self.run = wandb.init(mode=mode, project=project, entity=entity, group=group, name=run_name,
-                                  config=dict(config), dir=str(out_dir), reinit="finish_previous",
+                                  config=dict(config), dir=str(out_dir), reinit="create_new",
                                   settings=wandb.Settings(console="off", x_disable_stats=True))
         except Exception as e:  # a broken W&B must not stop the experiment
             log.warning("W&B disabled for this run: %s", e)

@@ -23,6 +23,9 @@ How:
   private temporary file that each worker reads when its content digest changes (one copy per
   worker per refit, however many requests use it). Pickling keeps every tensor exactly; rebuilding
   from a state dict would refactorise the GP and could differ in the last bits.
+* :meth:`PlanPool.run_groups` plans, in one batch, requests that use different MDEs (the lockstep
+  runner: every (method, seed) has its own); each distinct MDE is published once per batch and
+  workers keep the last few they read.
 * Workers run one OpenMP / BLAS / torch thread each (two workers must not oversubscribe two
   cores) and ignore SIGINT: Ctrl-C stops the parent, which then terminates them.
 * A request that raises in a worker raises the same exception in the parent (with the worker's
@@ -48,6 +51,7 @@ import shutil
 import signal
 import tempfile
 import time
+from collections import OrderedDict
 from concurrent.futures import Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -68,6 +72,8 @@ AUTO_MAX_WORKERS = 8
 #: thread-count variables every worker gets (set before spawning, so that libraries read them at load)
 _THREAD_ENV = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 _KINDS = ("plan", "candidates")
+#: MDEs a worker keeps in memory (least recently used dropped): a lockstep round uses one per run
+WORKER_MDE_CACHE = 64
 
 
 def available_cpus() -> int:
@@ -157,7 +163,7 @@ class PlanPool:
         self.fallback_reason: str | None = None
         self._executor: ProcessPoolExecutor | None = None
         self._tmp: Path | None = None
-        self._mde_ref: tuple[str, str] | None = None
+        self._mde_files: dict[str, str] = {}  # token -> path of each MDE the workers may read
         self._closed = False
 
     # -- public API ---------------------------------------------------------------------------------
@@ -173,22 +179,30 @@ class PlanPool:
         ``errors``: "raise" (the first failing request's exception ends the batch) or "record" (a
         run that raises becomes a run that found nothing, :func:`failed_run`; the others are unchanged).
         """
+        return self.run_groups([(requests, mde)], errors)[0]
+
+    def run_groups(self, groups: Sequence[tuple[Sequence[PlanRequest], DeviationEstimator | None]],
+                   errors: str = "raise") -> list[list[PlanResult | CandidateSet]]:
+        """:meth:`run` for several (requests, mde) groups at once, spread over the workers together:
+        ``out[g][k]`` is what ``run(groups[g][0], groups[g][1])[k]`` gives. How runs that each have
+        their own MDE (every method and seed of a lockstep round) share one planning batch."""
         if errors not in _ERRORS:
             raise ValueError(f"PlanPool.run errors = {errors!r}: allowed one of {_ERRORS}")
         if self._closed:
             raise RuntimeError("PlanPool.run after close()")
-        requests = list(requests)
-        for r in requests:
-            if not isinstance(r, PlanRequest):
-                raise TypeError(f"PlanPool.run takes PlanRequest items, got {type(r).__name__}")
-        if not requests:
-            return []
+        groups = [(list(reqs), mde) for reqs, mde in groups]
+        for reqs, _ in groups:
+            for r in reqs:
+                if not isinstance(r, PlanRequest):
+                    raise TypeError(f"PlanPool.run takes PlanRequest items, got {type(r).__name__}")
+        if not any(reqs for reqs, _ in groups):
+            return [[] for _ in groups]
         if self.parallel:
             self.start()
         record = errors == "record"
         if self._executor is None:
-            return self._run_here(requests, mde, record)
-        return self._run_in_workers(requests, mde, record)
+            return [self._run_here(reqs, mde, record) for reqs, mde in groups]
+        return self._run_in_workers(groups, record)
 
     def start(self) -> float:
         """Start the worker processes now (otherwise the first :meth:`run` does); returns seconds.
@@ -253,30 +267,32 @@ class PlanPool:
                 out.append(collect_candidates([_recorded(lambda u=u: u.run(planner), u, self.config) for u in r.units(self.config)]))
         return out
 
-    def _run_in_workers(self, requests: list[PlanRequest], mde: DeviationEstimator | None,
-                        record: bool = False) -> list:
+    def _run_in_workers(self, groups: list[tuple[list[PlanRequest], DeviationEstimator | None]],
+                        record: bool = False) -> list[list]:
         assert self._executor is not None
-        groups = [r.units(self.config) for r in requests]
-        units = [u for g in groups for u in g]
+        unit_sets = [[r.units(self.config) for r in reqs] for reqs, _ in groups]
+        units = [u for sets in unit_sets for us in sets for u in us]
+        mdes = [mde for (reqs, mde), sets in zip(groups, unit_sets) for us in sets for _ in us]
         if len(units) == 1:  # nothing to run side by side
-            return self._run_here(requests, mde, record)
+            return [self._run_here(reqs, mde, record) for reqs, mde in groups]
         try:
-            ref = self._publish_mde(mde)
+            refs = self._publish_mdes([mde for _, mde in groups])
         except Exception as e:  # noqa: BLE001 - e.g. an MDE that does not pickle: it still plans in-process
             self._fall_back(f"the MDE could not be sent to the worker processes ({type(e).__name__}: {e})")
-            return self._run_here(requests, mde, record)
+            return [self._run_here(reqs, mde, record) for reqs, mde in groups]
+        unit_refs = [ref for ref, sets in zip(refs, unit_sets) for us in sets for _ in us]
         try:
-            futures = [self._executor.submit(_work, u, ref) for u in units]
+            futures = [self._executor.submit(_work, u, ref) for u, ref in zip(units, unit_refs)]
         except BrokenProcessPool as e:
             self._fall_back(f"a planner worker process died ({e})")
-            return self._run_here(requests, mde, record)
+            return [self._run_here(reqs, mde, record) for reqs, mde in groups]
         done: list[PlanResult] = []
         try:
             for u, f in zip(units, futures):
                 done.append(_recorded(f.result, u, self.config) if record else f.result())
         except BrokenProcessPool as e:
             self._fall_back(f"a planner worker process died ({e})")
-            done += self._finish_here(units[len(done):], futures[len(done):], mde, record)
+            done += self._finish_here(units[len(done):], futures[len(done):], mdes[len(done):], record)
         except Exception:  # a request failed: as in-process, its error ends the batch
             _drop(futures, wait_running=True)
             raise
@@ -284,39 +300,48 @@ class PlanPool:
             _drop(futures, wait_running=False)
             raise
         out, i = [], 0
-        for r, g in zip(requests, groups):
-            runs, i = done[i:i + len(g)], i + len(g)
-            out.append(runs[0] if r.kind == "plan" else collect_candidates(runs))
+        for (reqs, _), sets in zip(groups, unit_sets):
+            results = []
+            for r, us in zip(reqs, sets):
+                runs, i = done[i:i + len(us)], i + len(us)
+                results.append(runs[0] if r.kind == "plan" else collect_candidates(runs))
+            out.append(results)
         return out
 
-    def _finish_here(self, units: list[PlanRequest], futures: list[Future], mde, record: bool = False
+    def _finish_here(self, units: list[PlanRequest], futures: list[Future], mdes: list, record: bool = False
                      ) -> list[PlanResult]:
         """After a worker died: keep what finished, plan the rest in-process (in order)."""
-        planner = Planner(self.dynamics, mde, self.config)
         out = []
-        for u, f in zip(units, futures):
+        for u, f, mde in zip(units, futures, mdes):
             if f.done() and not f.cancelled() and f.exception() is None:
                 out.append(f.result())
             else:
+                planner = Planner(self.dynamics, mde, self.config)
                 out.append(_recorded(lambda u=u: u.run(planner), u, self.config) if record else u.run(planner))
         return out
 
-    def _publish_mde(self, mde: DeviationEstimator | None) -> tuple[str, str] | None:
-        """Write the MDE where workers read it, unless its content is already there."""
-        if mde is None:
-            return None
-        data = dumps(mde)
-        token = hashlib.sha256(data).hexdigest()[:20]
-        if self._mde_ref is None or self._mde_ref[0] != token:
-            assert self._tmp is not None
-            path = self._tmp / f"mde-{token}.pkl"
-            part = path.with_suffix(".part")
-            part.write_bytes(data)
-            os.replace(part, path)  # a worker never sees half a file
-            if self._mde_ref is not None:  # no request of an earlier batch is still running
-                Path(self._mde_ref[1]).unlink(missing_ok=True)
-            self._mde_ref = (token, str(path))
-        return self._mde_ref
+    def _publish_mdes(self, mdes: list[DeviationEstimator | None]) -> list[tuple[str, str] | None]:
+        """Write each MDE where workers read it, unless its content is already there; files of MDEs
+        this batch does not use are removed (no request of an earlier batch is still running)."""
+        refs: list[tuple[str, str] | None] = []
+        for mde in mdes:
+            if mde is None:
+                refs.append(None)
+                continue
+            data = dumps(mde)
+            token = hashlib.sha256(data).hexdigest()[:20]
+            if token not in self._mde_files:
+                assert self._tmp is not None
+                path = self._tmp / f"mde-{token}.pkl"
+                part = path.with_suffix(".part")
+                part.write_bytes(data)
+                os.replace(part, path)  # a worker never sees half a file
+                self._mde_files[token] = str(path)
+            refs.append((token, self._mde_files[token]))
+        used = {ref[0] for ref in refs if ref is not None}
+        for token in [t for t in self._mde_files if t not in used]:
+            Path(self._mde_files.pop(token)).unlink(missing_ok=True)
+        return refs
 
     def _fall_back(self, reason: str) -> None:
         self.fallback_reason = reason
@@ -340,7 +365,7 @@ class PlanPool:
         if self._tmp is not None:
             shutil.rmtree(self._tmp, ignore_errors=True)
             self._tmp = None
-        self._mde_ref = None
+        self._mde_files = {}
 
 
 _ERRORS = ("raise", "record")
@@ -425,7 +450,7 @@ def _init_worker(dynamics_payload: bytes, config: PlannerConfig, preload: tuple[
 
     for name in preload:
         importlib.import_module(name)
-    _WORKER.update(dynamics=pickle.loads(dynamics_payload), config=config, mde_token=None, mde=None)
+    _WORKER.update(dynamics=pickle.loads(dynamics_payload), config=config, mdes=OrderedDict())
 
 
 def _exit_with_parent() -> None:
@@ -453,12 +478,14 @@ def _worker_pid() -> int:
 
 
 def _work(request: PlanRequest, mde_ref: tuple[str, str] | None) -> PlanResult | CandidateSet:
-    if mde_ref is None:
-        mde = None
-    else:
+    mde = None
+    if mde_ref is not None:
         token, path = mde_ref
-        if _WORKER["mde_token"] != token:
-            _WORKER["mde"] = pickle.loads(Path(path).read_bytes())
-            _WORKER["mde_token"] = token
-        mde = _WORKER["mde"]
+        cache = _WORKER["mdes"]
+        if token not in cache:
+            cache[token] = pickle.loads(Path(path).read_bytes())
+            while len(cache) > WORKER_MDE_CACHE:
+                cache.popitem(last=False)
+        cache.move_to_end(token)
+        mde = cache[token]
     return request.run(Planner(_WORKER["dynamics"], mde, _WORKER["config"]))

@@ -90,8 +90,11 @@ class PouringExecutor:
     def run(self, world: str, starts: np.ndarray, actions: Sequence[Sequence[Sequence[float]]],
             plant_jitter: np.ndarray | None = None, goals: Sequence[float] | None = None,
             frame_every: float | None = None, progress: bool = False,
-            freeze_done: bool = True) -> list[TrajectoryResult]:
+            freeze_done: bool = True, slots: Sequence[int] | None = None) -> list[TrajectoryResult]:
         """Execute ``actions[b]`` from cup pose ``starts[b]`` (x, y[, theta]) in every environment b.
+
+        ``slots[b]``: the particle-sampling slot of environment b (default b; :meth:`MPMSolver.reset`):
+        a trajectory run with the same slot in any batch gives the same result (on the CPU, bit for bit).
 
         ``freeze_done``: an environment whose trajectory has ended (its last settle observed; stuck
         early, shorter sequence, padding) is frozen and costs nothing for the rest of the batch. The
@@ -134,7 +137,7 @@ class PouringExecutor:
         timing = {"schedule": time.perf_counter() - t0}
 
         solver = self.solver(B)
-        solver.reset(specs)
+        solver.reset(specs, slots)
         bodies, lo, hi = cfg.volume_regions()
         n_part = solver.particle_counts().astype(float)
         h = cfg.control_dt

@@ -115,15 +115,20 @@ class MPMSolver:
         self._body_state = np.zeros((self.B, self.NB, 6), np.float32)  # x, y, th, vx, vy, w
 
     # ================================================================== set-up
-    def reset(self, specs: Sequence[EnvSpec]) -> None:
+    def reset(self, specs: Sequence[EnvSpec], slots: Sequence[int] | None = None) -> None:
         """Load one scene per environment: bodies, colliders, and freshly sampled water.
 
-        Everything is checked before any field is written: counts against the capacities, water
-        inside the tank, colliders inside the domain.
+        Environment b samples its water jitter with the generator ``[sim.seed, slots[b]]`` (default
+        ``slots[b] = b``): a scene run with the same slot in another batch gets the same particles, and
+        so, environments being independent, the same results. Everything is checked before any field
+        is written: counts against the capacities, water inside the tank, colliders inside the domain.
         """
         cfg = self.cfg
         if len(specs) != self.B:
             raise ConfigError(f"reset: got {len(specs)} environment specs, sim.n_envs = {self.B}")
+        slots = list(range(self.B)) if slots is None else [int(k) for k in slots]
+        if len(slots) != self.B or min(slots) < 0:
+            raise ConfigError(f"reset: slots must be {self.B} integers >= 0, got {slots}")
         if self.dim != 2 and any(s.bodies for s in specs):
             raise ConfigError("colliding bodies are implemented for sim.dim = 2 only (3D: tank walls only)")
         lo_w, hi_w = cfg.wall, [L - cfg.wall for L in cfg.domain]
@@ -142,7 +147,7 @@ class MPMSolver:
         for b, spec in enumerate(specs):
             if len(spec.bodies) > self.NB:
                 raise ConfigError(f"env {b}: {len(spec.bodies)} bodies > sim.max_bodies = {self.NB}")
-            rng = np.random.default_rng([cfg.seed, b])
+            rng = np.random.default_rng([cfg.seed, slots[b]])
             pts = sample_water(spec, cfg.dx, cfg.ppc, rng, cfg.jitter) if self.dim == 2 else _sample_nd(spec, cfg, rng)
             if len(pts) > self.N:
                 raise ConfigError(f"env {b}: {len(pts)} particles > sim.max_particles = {self.N}; raise "

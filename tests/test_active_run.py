@@ -128,6 +128,57 @@ def test_resume_after_kill_gives_identical_results(cache, straight_run, tmp_path
         assert torch.equal(a["X"], b["X"]) and torch.equal(a["y"], b["y"])
 
 
+def _same_run(a: Path, b: Path) -> None:
+    """Two run directories hold the same results (timing columns aside), method by method."""
+    for method in ("active_balanced", "random_actions"):
+        assert _comparable(a / method / "results.csv") == _comparable(b / method / "results.csv")
+        for name in ("categories.csv", "calibration.csv"):
+            assert read_csv(a / method / name) == read_csv(b / method / name)
+        x, y = torch.load(a / method / "dataset.pt"), torch.load(b / method / "dataset.pt")
+        assert torch.equal(x["X"], y["X"]) and torch.equal(x["y"], y["y"])
+
+
+def test_lockstep_gives_the_results_of_the_sequential_run(cache, straight_run, tmp_path):
+    """runner=lockstep: both methods share each round's planning batch and simulation (random_actions,
+    which does not plan, joins the other's simulation); the results are the sequential run's, bit for bit."""
+    straight, _ = straight_run
+    out = tmp_path / "lockstep"
+    run_experiment(compose_config(tiny_overrides(cache) + ["planner.workers=1", "runner=lockstep"]), out)
+    _same_run(out, straight)
+
+
+@pytest.mark.slow  # two more tiny runs, one of two seeds: ~140 s on 2 cores
+def test_lockstep_over_methods_and_seeds_gives_the_results_of_each_run_alone(cache, straight_run, tmp_path):
+    """runner=lockstep with seeds [0, 3]: both methods of both seeds share each round's planning batch and
+    simulation (random_actions, which does not plan, joins the others' simulation). Seed 0's folder was
+    started by a single-seed run that finished one iteration of active_balanced only (a kill between
+    two runs' saves looks the same: every save is atomic), so lockstep resumes each run from its own
+    iteration. Seed 0 ends with the sequential run's results bit for bit; report/ covers both seeds."""
+    straight, _ = straight_run
+    out = tmp_path / "lockstep"
+    tiny = tiny_overrides(cache) + ["planner.workers=1"]  # the straight run planned in 2 processes where it could
+    run_experiment(compose_config(tiny + ["method=active_balanced", "experiment.iterations=1"]), out / "seed0")
+    assert not (out / "seed0" / "random_actions").exists()
+    made = run_experiment(compose_config(tiny + ["runner=lockstep", "seeds=[0,3]"]), out)
+    _same_run(out / "seed0", straight)
+    assert [int(r["iteration"]) for r in read_csv(out / "seed3" / "random_actions" / "results.csv")] == [1, 2]
+    assert {(s["method"], s["seeds"]) for s in made["summary"]} == {("active_balanced", 2), ("random_actions", 2)}
+    assert (out / "report" / "learning_curves.png").stat().st_size > 0
+    assert json.loads((out / "seed3" / "config.json").read_text())["seed"] == 3
+
+
+@pytest.mark.parametrize("override,match", [
+    ("runner=parallel", r"runner = 'parallel': allowed one of \('sequential', 'lockstep'\)"),
+    ("seeds=[0,0]", r"seeds = \[0, 0\]: allowed each seed at most once"),
+    ("seeds=[1,-2]", r"seeds\[1\] = -2: allowed an integer"),
+    ("seeds=[]", r"seeds = \[\]: allowed null"),
+])
+def test_runner_and_seeds_errors_before_compute(cache, tmp_path, override, match):
+    with pytest.raises(ValueError, match=match):
+        run_experiment(compose_config(tiny_overrides(cache) + [override]), tmp_path / "bad")
+    assert not (tmp_path / "bad").exists()
+
+
 @pytest.mark.slow  # one more tiny run, ~40 s on 2 cores; tests/test_planner_pool.py checks the pool itself by default
 def test_planner_workers_do_not_change_results(cache, straight_run, tmp_path):
     """The straight run planned with planner.workers=auto; another process count gives the same results."""

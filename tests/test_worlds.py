@@ -81,6 +81,20 @@ def test_batch_independence_and_determinism(executor, runs):
     assert not np.array_equal(again[3].states[-1], runs["target"][3].states[-1])
 
 
+def test_a_trajectory_keeps_its_result_in_another_batch_with_its_slot(executor, runs):
+    """What the lockstep runner relies on: trajectory 2 run in a batch of 6, in another position, next
+    to other trajectories, with its slot (2) gives its result bit for bit; with another slot its water
+    is sampled differently."""
+    starts = np.array([SCRIPTS[k][0] for k in (3, 0, 2, 0, 2, 0)])
+    acts = [SCRIPTS[k][1] for k in (3, 0, 2, 0, 2, 0)]
+    moved = executor.run("target", starts, acts, slots=[3, 0, 2, 4, 5, 6])
+    np.testing.assert_array_equal(moved[2].states, runs["target"][2].states)
+    np.testing.assert_array_equal(moved[0].states, runs["target"][3].states)
+    assert not np.array_equal(moved[4].states, runs["target"][2].states)  # the same scene, slot 5
+    with pytest.raises(Exception, match="slots must be 6 integers >= 0"):
+        executor.run("target", starts, acts, slots=[0, 1, 2])
+
+
 def test_freezing_finished_environments_changes_no_result(executor, runs):
     """Environments whose trajectory ended are frozen by default; simulating them to the end of the
     longest trajectory instead gives bit-identical observations for every trajectory, in less work."""
