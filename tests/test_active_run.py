@@ -39,7 +39,7 @@ def cache(tmp_path_factory):
 @pytest.fixture(scope="module")
 def straight_run(cache, tmp_path_factory):
     out = tmp_path_factory.mktemp("straight")
-    cfg = compose_config(tiny_overrides(cache))
+    cfg = compose_config(tiny_overrides(cache) + ["runner=sequential"])  # the CLI's default is lockstep
     made = run_experiment(cfg, out)
     return out, made
 
