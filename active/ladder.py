@@ -18,6 +18,7 @@ dynamics model (the same config composition as ``python -m active.run``, overrid
     python -m active.ladder --out outputs/ladder
     python -m active.ladder --out outputs/ladder_stretch +world.sim.stretch_relax=0.02
     python -m active.ladder --out DIR --rungs source_model_only ceiling experiment.plan_goal_tol=0.02
+    python -m active.ladder --out DIR --rungs source_model_only target_model_only --model-seeds 0 1 2
 
 Writes ``DIR/ladder.json`` (atomically, after each rung, so a killed run keeps the rungs it finished)
 and prints a table with the issue's targets next to the measured figures.
@@ -242,8 +243,15 @@ def _admission(mu: np.ndarray, sd: np.ndarray, y: np.ndarray, exp, prefix: str) 
 
 
 def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[float], hold: float, n: int,
-               n_train: int, slots: int = 32, progress: bool = True, ceiling_data: Path | None = None) -> dict:
-    """Measure the requested rungs; ``ladder.json`` is rewritten after each one."""
+               n_train: int, slots: int = 32, progress: bool = True, ceiling_data: Path | None = None,
+               model_seeds: Sequence[int] | None = None) -> dict:
+    """Measure the requested rungs; ``ladder.json`` is rewritten after each one.
+
+    ``model_seeds``: the model-only rungs are measured with a dynamics model trained with each of these
+    seeds (``dynamics.train.seed``; each cached by its config hash) on the same data and problems, and
+    report the mean over the models with each model's figures (``per_model_seed``): one training draw
+    moves the source rung by up to 0.4 (BENCHMARKS.md, session 7). The ceiling uses the first model.
+    None: the config's model only."""
     import dynamics
     from hydra.utils import instantiate
     from sim.execute import PouringExecutor
@@ -281,20 +289,28 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
     if "reproducibility" in rungs:
         t0 = time.perf_counter()
         save("reproducibility", reproducibility(world, executor, thetas, hold, n=slots), t0)
-    if set(rungs) & {"source_model_only", "target_model_only", "ceiling"}:
+    seeds = [int(cfg["dynamics"]["train"]["seed"])] if model_seeds is None else [int(k) for k in model_seeds]
+    model_rungs = [r for r in ("source_model_only", "target_model_only") if r in rungs]
+    per_seed: dict[str, list[dict]] = {r: [] for r in model_rungs}
+    mde_cfg = dict(cfg["mde"])
+    make_mde = lambda: instantiate(mde_cfg, _convert_="all")  # noqa: E731
+    for i, model_seed in enumerate(seeds if set(rungs) & {*model_rungs, "ceiling"} else []):
+        if i > 0 and not model_rungs:
+            break
         t0 = time.perf_counter()
-        dyn = dynamics.load_or_train(cfg["dynamics"], world_cfg=cfg["world"], progress=progress)
+        dyn_cfg = {**cfg["dynamics"], "train": {**cfg["dynamics"]["train"], "seed": model_seed}}
+        dyn = dynamics.load_or_train(dyn_cfg, world_cfg=cfg["world"], progress=progress)
         if exp.known_obstacles:
             dyn = dynamics.ContactAwareDynamics(dyn, world)
-        result.setdefault("rung_seconds", {})["dynamics"] = time.perf_counter() - t0
-        mde_cfg = dict(cfg["mde"])
-        make_mde = lambda: instantiate(mde_cfg, _convert_="all")  # noqa: E731
+        result.setdefault("rung_seconds", {})["dynamics" if i == 0 else f"dynamics_seed{model_seed}"] = \
+            time.perf_counter() - t0
         with PlanPool(dyn, planner_cfg, workers, preload=[type(make_mde()).__module__]) as pool:
-            for name in ("source_model_only", "target_model_only"):
-                if name in rungs:
-                    t0 = time.perf_counter()
-                    save(name, model_only(world, name.split("_")[0], pool, exp, executor, n, seed), t0)
-            if "ceiling" in rungs:
+            for name in model_rungs:
+                t0 = time.perf_counter()
+                per_seed[name].append({"model_seed": model_seed,
+                                       **model_only(world, name.split("_")[0], pool, exp, executor, n, seed)})
+                save(name, _over_models(per_seed[name]), t0)
+            if "ceiling" in rungs and i == 0:
                 t0 = time.perf_counter()
                 save("ceiling", ceiling(world, dyn, pool, exp, executor, make_mde, n_train, n, seed,
                                         data_path=ceiling_data or out / "ceiling_train.npz",
@@ -306,6 +322,23 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
 
 
 RUNGS = ("reproducibility", "source_model_only", "target_model_only", "ceiling")
+
+
+def _over_models(rows: list[dict]) -> dict:
+    """A model-only rung over several dynamics models: the first model's record with found, success and
+    the mean goal error replaced by their means over the models, each model's record in
+    ``per_model_seed`` (a single model: its record as it is)."""
+    if len(rows) == 1:
+        return {k: v for k, v in rows[0].items() if k != "model_seed"}
+    out = {k: v for k, v in rows[0].items() if k not in ("model_seed", "categories")}
+    for k in ("found", "success", "mean_abs_goal_error"):
+        vals = [r[k] for r in rows if r[k] is not None]
+        out[k] = float(np.mean(vals)) if vals else None
+        out[f"{k}_range"] = [float(min(vals)), float(max(vals))] if vals else None
+    out["plan_seconds"] = float(sum(r["plan_seconds"] for r in rows))
+    out["model_seeds"] = [r["model_seed"] for r in rows]
+    out["per_model_seed"] = rows
+    return out
 
 
 def _get(result: dict, dotted: str) -> Any:
@@ -327,8 +360,11 @@ def table(result: dict) -> str:
         v = _get(result, key)
         op, tgt = TARGETS.get(key, (None, None))
         met = "" if v is None or op is None else ("yes" if (v <= tgt if op == "<=" else v >= tgt) else "NO")
+        rng = _get(result, key + "_range")
+        over = "" if rng is None else f"  (mean of {len(_get(result, key.split('.')[0] + '.model_seeds'))} models: " \
+            f"{fmt.format(rng[0])}-{fmt.format(rng[1])})"
         lines.append(f"{key:34s} {'-' if v is None else fmt.format(v):>9s} "
-                     f"{'' if op is None else f'{op} {tgt:g}':>9s}  {met}")
+                     f"{'' if op is None else f'{op} {tgt:g}':>9s}  {met}{over}")
     for r in (_get(result, "reproducibility.pours") or []):
         offs = f", sub-cell offsets {r['offsets_mean']:.3f} +- {r['offsets_std']:.3f}" if "offsets_std" in r else ""
         lines.append(f"  pour theta {r['theta']:.2f} hold {r['hold']:.2f}: slots {r['slots_mean']:.3f} +- "
@@ -357,6 +393,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--ceiling-data", type=Path, default=None,
                     help="reuse the training transitions of an earlier run (its DIR/ceiling_train.npz) instead "
                          "of simulating them; labels are recomputed with the current dynamics model")
+    ap.add_argument("--model-seeds", type=int, nargs="+", default=None,
+                    help="measure the model-only rungs with a dynamics model trained with each of these seeds "
+                         "(dynamics.train.seed; trained on first use, cached) and report their mean and range "
+                         "(default: the config's model only)")
     ap.add_argument("overrides", nargs="*", help="Hydra overrides, as for python -m active.run")
     args, extra = ap.parse_known_args(argv)
     bad = [e for e in extra if "=" not in e]
@@ -368,6 +408,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.problems < 1 or args.ceiling_trajectories < 2 or args.slots < 2:
         raise SystemExit(f"--problems {args.problems} / --ceiling-trajectories {args.ceiling_trajectories} / "
                          f"--slots {args.slots}: allowed >= 1 / >= 2 / >= 2")
+    if args.model_seeds is not None and (len(set(args.model_seeds)) != len(args.model_seeds)
+                                         or min(args.model_seeds) < 0):
+        raise SystemExit(f"--model-seeds {args.model_seeds}: allowed distinct integers >= 0")
     if args.ceiling_data is not None and not args.ceiling_data.is_file():
         raise SystemExit(f"--ceiling-data {args.ceiling_data}: no such file")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
@@ -376,7 +419,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     cfg = compose_config(args.overrides)
     result = run_ladder(cfg, args.out, args.rungs, args.thetas, args.hold, args.problems,
                         args.ceiling_trajectories, slots=args.slots, progress=bool(cfg.get("progress", True)),
-                        ceiling_data=args.ceiling_data)
+                        ceiling_data=args.ceiling_data, model_seeds=args.model_seeds)
     print(table(result))
     print(f"wrote {args.out / 'ladder.json'}")
 

@@ -9,6 +9,11 @@ reached. Everything a run needs to continue is written atomically after every it
 run started again with the same output directory resumes from the last completed iteration and, on
 the CPU with the same seed, ends with the same results (all randomness is derived from
 (seed, purpose, iteration, index), never from history).
+
+An iteration is written as a generator (:meth:`MethodRun.iteration_steps`) that yields what it
+waits for, planner calls (:class:`PlanNeed`) and simulations (:class:`SimNeed`), so that one run
+can be served alone (:meth:`MethodRun.run`) or batched with every other run of a round
+(:mod:`active.lockstep`) with the same results.
 """
 
 from __future__ import annotations

@@ -68,3 +68,22 @@ def test_table_marks_targets():
     assert lines["source_model_only.found"].endswith("yes")
     assert lines["ceiling.success"].split()[1] == "-"
     assert set(RUNGS) == {"reproducibility", "source_model_only", "target_model_only", "ceiling"}
+
+
+def test_model_only_rungs_over_several_models_report_mean_range_and_each_model():
+    """--model-seeds: one training draw moves the source rung by up to 0.4, so the rung reports the mean
+    over models, the range, and every model's record; one model keeps the record it always had."""
+    from active.ladder import _over_models
+
+    def rec(seed, found, success, err):
+        return {"model_seed": seed, "n": 30, "found": found, "success": success, "mean_abs_goal_error": err,
+                "categories": {"successful_pour": 1}, "spill_over_limit": 0, "plan_seconds": 10.0}
+
+    rows = [rec(0, 0.9, 0.4, 0.06), rec(1, 0.8, 0.2, None)]
+    out = _over_models(rows)
+    assert out["found"] == pytest.approx(0.85) and out["success"] == pytest.approx(0.3)
+    assert out["success_range"] == [0.2, 0.4] and out["mean_abs_goal_error"] == 0.06  # None: no plan executed
+    assert out["model_seeds"] == [0, 1] and out["per_model_seed"] == rows and out["plan_seconds"] == 20.0
+    assert "(mean of 2 models: 0.20-0.40)" in table({"source_model_only": out})
+    one = _over_models([rec(3, 0.5, 0.1, 0.08)])
+    assert "model_seed" not in one and one["success"] == 0.1 and "per_model_seed" not in one
