@@ -102,7 +102,8 @@ def test_a_built_wheel_runs_the_tiny_experiment_outside_the_repository(cache, st
 
 
 def test_resume_after_kill_gives_identical_results(cache, straight_run, tmp_path):
-    """Kill the real CLI with SIGKILL once the first iteration is saved, start it again, compare."""
+    """Kill the real CLI with SIGKILL once the first iteration is saved, start it again, compare. The CLI
+    runs in lockstep (its default) and the straight run sequentially: the same results either way."""
     straight, _ = straight_run
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "active.run", *tiny_overrides(cache), f"hydra.run.dir={out}"]
@@ -138,6 +139,7 @@ def _same_run(a: Path, b: Path) -> None:
         assert torch.equal(x["X"], y["X"]) and torch.equal(x["y"], y["y"])
 
 
+@pytest.mark.slow  # ~60 s; in CI the CLI runs of the kill and wheel tests (default runner: lockstep) check the same
 def test_lockstep_gives_the_results_of_the_sequential_run(cache, straight_run, tmp_path):
     """runner=lockstep: both methods share each round's planning batch and simulation (random_actions,
     which does not plan, joins the other's simulation); the results are the sequential run's, bit for bit."""
