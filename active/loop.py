@@ -77,7 +77,7 @@ def comparable_config(cfg: Mapping[str, Any]) -> dict:
         c.get("experiment", {}).pop(k, None)
     for k in ("cache_root", "progress"):
         c.get("dynamics", {}).pop(k, None)
-    for k in ("wandb", "progress", "method"):
+    for k in ("wandb", "progress", "method", "runner", "seeds"):  # runner, seeds: how runs are carried out
         c.pop(k, None)
     c.get("planner", {}).pop("workers", None)  # where plans are computed, not what they are
     if isinstance(c.get("acquisition"), dict):
