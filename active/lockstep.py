@@ -8,13 +8,12 @@ that yields what it waits for; a round serves every run's planner calls in one p
 with its own MDE) and their simulations in one executor call. A run's results do not depend on the
 others': all randomness is derived from (seed, purpose, iteration, index), a trajectory samples its
 water as the slot it has when its run is alone, and environments do not interact. So on the CPU a
-run gives in lockstep exactly the results it gives alone (``tests/test_active_lockstep.py``), and a
+run gives in lockstep exactly the results it gives alone (``tests/test_active_run.py``), and a
 killed lockstep run resumes each (method, seed) from its own last saved iteration.
 """
 
 from __future__ import annotations
 
-import logging
 from typing import Sequence
 
 from tqdm.auto import tqdm
@@ -23,8 +22,6 @@ from planner.pool import PlanPool
 from sim.execute import PouringExecutor
 
 from .loop import MethodRun, PlanNeed, SimNeed, execute_needs
-
-log = logging.getLogger(__name__)
 
 
 def run_lockstep(runs: Sequence[MethodRun], pool: PlanPool, executor: PouringExecutor, progress: bool = True) -> None:

@@ -130,27 +130,29 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
                                   entity=wandb_cfg.get("entity"), group=f"{exp.name}-seed{s}")
                 return MethodRun(ctx, method, make_mde, make_acq, tracker)
 
-            def report_seed(s: int, runs: list[MethodRun]) -> None:
+            def report_seed(s: int, runs: list[MethodRun]) -> dict:
                 d = seed_dirs[s]
-                report([d], d / "report")  # figures for W&B and partial runs
+                made = report([d], d / "report")  # figures for W&B and partial runs
                 for r in runs:
                     r.tracker.log_images({"learning_curves": d / "report" / "learning_curves.png",
                                           "trajectory_types": d / "report" / "trajectory_types.png"})
                     r.tracker.finish()
+                return made
 
             if runner == "lockstep":
                 runs = {s: [start(s, m) for m in exp.methods] for s in seeds}
                 run_lockstep([r for s in seeds for r in runs[s]], pool, executor, progress=progress)
                 for s in seeds:
-                    report_seed(s, runs[s])
+                    made = report_seed(s, runs[s])
             else:
                 for s in seeds:
                     for method in exp.methods:
                         r = start(s, method)
                         r.run()
-                        report_seed(s, [r])  # after every method
+                        made = report_seed(s, [r])  # after every method
         executor.close()
-    made = report([seed_dirs[s] for s in seeds], out / "report")  # with seeds: every seed's runs together
+    if not single:  # every seed's runs together (one seed: its report is the run's)
+        made = report([seed_dirs[s] for s in seeds], out / "report")
     print(made["table"])
     print(f"results and figures in {out} ({time.perf_counter() - t0:.0f} s)")
     return made
