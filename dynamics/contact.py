@@ -50,7 +50,11 @@ class ContactAwareDynamics:
         s, a = np.asarray(states, float), np.asarray(actions, float)
         if s.ndim == 1:
             return self.predict_one(s, a)
-        return self._apply(s, a, self.model.predict_np(s, a))
+        inner = getattr(self.model, "predict_np", None)
+        if inner is None:  # a model with the torch path only
+            out = self.model.predict(torch.as_tensor(s, dtype=torch.float32), torch.as_tensor(a, dtype=torch.float32))
+            return self._apply(s, a, out.detach().double().cpu().numpy())
+        return self._apply(s, a, inner(s, a))
 
     def predict_one(self, state: np.ndarray, action: np.ndarray) -> np.ndarray:
         s, a = np.asarray(state, float).reshape(1, -1), np.asarray(action, float).reshape(1, -1)

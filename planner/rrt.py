@@ -416,20 +416,31 @@ class _Evaluator:
         self.sampler = sampler
         self.dyn_dtype = _torch_dtype(dynamics, torch.get_default_dtype())
         self.dyn_device = _torch_device(dynamics)
+        np_path = getattr(dynamics, "predict_np", None)
+        self.predict_np = np_path if callable(np_path) and self.dyn_device.type == "cpu" else None
         self.mde_dtype = _torch_dtype(mde, torch.get_default_dtype()) if mde is not None else None
         self.mde_device = _torch_device(mde) if mde is not None else None
 
     def predict_next(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """Next states [k, 5] for k (state, action) pairs, one batched model call."""
+        """Next states [k, 5] for k (state, action) pairs, one batched model call.
+
+        A CPU model's numpy path (``predict_np``, float64 arithmetic) when it has one: the planner's
+        batches are small (tens of rows), where torch's per-call overhead is most of the cost."""
         k = len(actions)
+        if self.predict_np is not None:
+            nxt = np.asarray(self.predict_np(np.asarray(states, float), np.asarray(actions, float)), dtype=float)
+        else:
+            nxt = self._predict_torch(states, actions)
+        if nxt.shape != (k, STATE_DIM):
+            raise ValueError(f"dynamics model returned shape {tuple(nxt.shape)}, expected ({k}, {STATE_DIM})")
+        return nxt
+
+    def _predict_torch(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
         with torch.no_grad():
             s = torch.tensor(states, dtype=self.dyn_dtype, device=self.dyn_device)  # copies: inputs
             a = torch.tensor(actions, dtype=self.dyn_dtype, device=self.dyn_device)  # may be read-only
             nxt = self.dynamics.predict(s, a)
-            nxt = np.asarray(torch.as_tensor(nxt).detach().to("cpu", torch.float64).numpy(), dtype=float)
-        if nxt.shape != (k, STATE_DIM):
-            raise ValueError(f"dynamics model returned shape {tuple(nxt.shape)}, expected ({k}, {STATE_DIM})")
-        return nxt
+            return np.asarray(torch.as_tensor(nxt).detach().to("cpu", torch.float64).numpy(), dtype=float)
 
     def deviation(self, states: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """MDE mean [k] and std [k] (zeros without an MDE), one batched call."""

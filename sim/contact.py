@@ -93,7 +93,7 @@ class ContactPredictor:
         near = np.flatnonzero(self._near(flat))
         if near.size:
             pts = to_world(self.boundary, flat[near]).reshape(-1, 2)
-            d, idx = self.obstacles.sdf(pts)
+            d, idx = self.obstacles.sdf(pts, cutoff=self.margin)  # exact below the margin, all callers compare
             d, idx = d.reshape(near.size, -1), idx.reshape(near.size, -1)
             if len(self._obstacle_pts):
                 d = np.concatenate([d, self._cup_sdf(flat[near], self._obstacle_pts)], 1)

@@ -1,0 +1,154 @@
+"""Where a planner call's time goes, on the experiment's own batches:
+``python -m benchmarks.planner_profile --mde CHECKPOINT [--out FILE] [overrides]``.
+
+Why: planning is a third of the main job, and a propagation is a chain of small batched calls
+(the learned model, the known-geometry contact check, the MDE) driven by OMPL's C++ loop. This
+runs the batches :mod:`benchmarks.planner_pool` builds (the run's test plans and one training
+chunk, in-process) and reports:
+
+* propagations (model rows) per second, with the model called through its numpy path (the
+  planner's default for a CPU model with ``predict_np``) and through torch (the path before), timed
+  alternately in one process, medians of ``--repeat``; whether the plans agree;
+* one profiled pass per path (``cProfile``): the share of the planning time spent in the learned
+  model, the contact check (``sim.contact.ContactPredictor.first_contact``), the MDE and the
+  rest (OMPL's loop, the propagator's bookkeeping, the profiler's own overhead).
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import pstats
+import statistics
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+from benchmarks._cli import report
+from benchmarks.planner_pool import experiment_batches, fingerprint
+from planner.pool import PlanPool
+from planner.results import CandidateSet
+
+#: profiled functions whose cumulative time makes each part (file suffix, function name)
+PARTS = {
+    "contact check": [("sim/contact.py", "first_contact")],
+    "learned model": [("dynamics/model.py", "predict_np"), ("dynamics/model.py", "predict")],
+    "MDE": [("planner/rrt.py", "deviation")],
+}
+TOTAL = ("planner/rrt.py", "_solve_with_ompl")
+
+
+def _propagations(results: list) -> int:
+    runs = [x for r in results for x in (r.runs if isinstance(r, CandidateSet) else [r])]
+    return sum(int(x.stats.propagations) for x in runs)
+
+
+def _cumulative(stats: pstats.Stats, keys: list[tuple[str, str]]) -> float:
+    total = 0.0
+    for (path, _line, name), (_cc, _nc, _tt, ct, _callers) in stats.stats.items():  # type: ignore[attr-defined]
+        if any(path.endswith(p) and name == n for p, n in keys):
+            total += ct
+    return total
+
+
+def _set_path(pool: PlanPool, path: str) -> None:
+    """Route the planner's model calls through ``path`` ("numpy" or "torch") for this process's planner."""
+    import planner.rrt as rrt
+
+    if not hasattr(rrt._Evaluator, "_bench_init"):
+        rrt._Evaluator._bench_init = rrt._Evaluator.__init__  # type: ignore[attr-defined]
+
+    def init(self, *args, **kwargs):
+        rrt._Evaluator._bench_init(self, *args, **kwargs)  # type: ignore[attr-defined]
+        if path == "torch":
+            self.predict_np = None
+
+    rrt._Evaluator.__init__ = init  # type: ignore[method-assign]
+
+
+def run(overrides: Sequence[str] = (), mde_path: str | None = None, seed: int = 0, iteration: int = 0,
+        repeat: int = 2) -> dict[str, Any]:
+    from active.run import compose_config
+    from mde.grouped import GroupedMDE
+
+    cfg = compose_config(["experiment=quick", *overrides])
+    dyn, planner_cfg, batches, info = experiment_batches(cfg, seed, iteration)
+    mde = GroupedMDE.load(mde_path) if mde_path else None
+    pool = PlanPool(dyn, planner_cfg, workers=1)
+    pool.run(batches["test"][:1], mde)  # lazy torch / OMPL set-up
+    paths = ("numpy", "torch")
+    times = {p: {b: [] for b in batches} for p in paths}
+    prints: dict[str, dict[str, Any]] = {p: {} for p in paths}
+    props: dict[str, int] = {}
+    for rep in range(repeat):  # alternating: a drift of the machine's speed hits both paths alike
+        for path in (paths if rep % 2 == 0 else paths[::-1]):
+            _set_path(pool, path)
+            for name, reqs in batches.items():
+                t = time.perf_counter()
+                got = pool.run(reqs, mde)
+                times[path][name].append(time.perf_counter() - t)
+                prints[path][name] = [fingerprint(r) for r in got]
+                props[name] = _propagations(got) if path == "numpy" else props.get(name, 0)
+    shares: dict[str, dict[str, float]] = {}
+    for path in paths:
+        _set_path(pool, path)
+        prof = cProfile.Profile()
+        prof.enable()
+        for reqs in batches.values():
+            pool.run(reqs, mde)
+        prof.disable()
+        st = pstats.Stats(prof)
+        total = _cumulative(st, [TOTAL])
+        parts = {k: _cumulative(st, v) / total for k, v in PARTS.items()}
+        parts["OMPL loop, bookkeeping, profiler"] = 1.0 - sum(parts.values())
+        shares[path] = parts
+    result: dict[str, Any] = {"setup": info, "mde": mde_path, "overrides": list(overrides), "seed": seed,
+                              "iteration": iteration, "batches": {}, "shares": shares}
+    for name, reqs in batches.items():
+        med = {p: statistics.median(times[p][name]) for p in paths}
+        result["batches"][name] = {
+            "requests": len(reqs), "propagations_numpy_path": props[name],
+            "seconds": med, "seconds_all": {p: times[p][name] for p in paths},
+            "propagations_per_s_numpy_path": props[name] / med["numpy"],
+            "speedup_numpy_over_torch": med["torch"] / med["numpy"],
+            "same_plans": prints["numpy"][name] == prints["torch"][name],
+        }
+    return result
+
+
+def format_table(r: dict[str, Any]) -> str:
+    lines = [f"setup: {r['setup']}", f"MDE: {r['mde']}", "",
+             f"{'batch':<8} {'propagations':>12} {'torch path s':>13} {'numpy path s':>13} {'speedup':>8} "
+             f"{'prop/s (numpy)':>15}  same plans"]
+    for name, b in r["batches"].items():
+        lines.append(f"{name:<8} {b['propagations_numpy_path']:>12} {b['seconds']['torch']:>13.2f} "
+                     f"{b['seconds']['numpy']:>13.2f} {b['speedup_numpy_over_torch']:>8.2f} "
+                     f"{b['propagations_per_s_numpy_path']:>15.0f}  {'yes' if b['same_plans'] else 'no'}")
+    lines += ["", "share of planning time (profiled pass, both batches)"]
+    names = list(next(iter(r["shares"].values())))
+    lines.append(f"{'part':<34} " + " ".join(f"{p + ' path':>12}" for p in r["shares"]))
+    for n in names:
+        lines.append(f"{n:<34} " + " ".join(f"{r['shares'][p][n]:>12.2f}" for p in r["shares"]))
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.planner_profile", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--mde", default=None, metavar="CHECKPOINT", help="a run's mde_iterNNN.pt (default: no MDE)")
+    ap.add_argument("--seed", type=int, default=0, help="the run seed the problems and plan seeds derive from")
+    ap.add_argument("--iteration", type=int, default=3, help="the iteration the plan seeds and training beta are of")
+    ap.add_argument("--repeat", type=int, default=2, help="timed repeats per path (median reported)")
+    ap.add_argument("--out", type=Path, default=None, help="write the result as JSON here")
+    ap.add_argument("overrides", nargs="*", help="Hydra overrides of the experiment config (default experiment=quick)")
+    args = ap.parse_args(argv)
+    if args.repeat < 1:
+        ap.error("--repeat must be >= 1")
+    if args.mde is not None and not Path(args.mde).is_file():
+        ap.error(f"--mde {args.mde}: no such file")
+    r = run(args.overrides, mde_path=args.mde, seed=args.seed, iteration=args.iteration, repeat=args.repeat)
+    report(format_table(r), r, args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
