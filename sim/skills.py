@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+from task import on_lattice
 
 from .motion import min_jerk, min_jerk_duration
 from .scene import Body, Shape
@@ -190,7 +191,7 @@ def plan_schedule(cfg: WorldConfig, start: np.ndarray, actions: np.ndarray, obst
         p0 = poses[-1]
         kind = int(a[0])
         if kind == MOVE:
-            goal = np.array([a[1], a[2], p0[2]])
+            goal = np.array([*on_lattice(a[1:3], sk.get("lattice", 0.0)), p0[2]])
             T = float(min_jerk_duration(np.linalg.norm(goal[:2] - p0[:2]), sk["move"]["peak_speed"], min_time=h))
             n = int(np.ceil(T / h))
             seg = p0 + (goal - p0) * min_jerk(np.arange(1, n + 1) * h / T)[:, None]

@@ -90,6 +90,10 @@ class WorldConfig:
         g0, g1 = self.problems["goal"]
         if not 0 <= g0 <= g1 <= 1:
             raise ConfigError(f"world.problems.goal = {[g0, g1]}: allowed a sub-range of [0, 1]")
+        lat = self.skills.get("lattice", 0.0)
+        if not (isinstance(lat, (int, float)) and 0 <= lat <= 0.05):
+            raise ConfigError(f"world.skills.lattice = {lat!r}: allowed 0 (continuous positions) or a spacing "
+                              f"in (0, 0.05] m")
         if not 1 <= int(self.skills["max_actions"]) <= 6:
             raise ConfigError(f"world.skills.max_actions = {self.skills['max_actions']}: allowed 1..6")
 

@@ -81,4 +81,4 @@ def state_distance(s_i: np.ndarray, s_j: np.ndarray, weights: Mapping[str, float
     return w["pose"] * pose + w["volume"] * vol
 
 
-from .problems import WORLDS, Problem, check_world, sample_problems  # noqa: E402 - after the names it may use
+from .problems import WORLDS, Problem, check_world, on_lattice, sample_problems  # noqa: E402 - after the names it may use

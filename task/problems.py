@@ -33,6 +33,17 @@ class Problem:
     world: str = "target"
 
 
+def on_lattice(xy: Any, lattice: float) -> np.ndarray:
+    """Positions rounded to the nearest multiple of ``lattice`` (m); 0 leaves them continuous.
+
+    A world's ``skills.lattice`` puts every cup position (problem starts here, move targets in
+    ``sim.skills.plan_schedule``) on the solver's grid phase, so a pouring lip always sits on the grid
+    the same way: a diagnostic world without the sub-cell term of a pour's scatter (BENCHMARKS.md,
+    session 9)."""
+    xy = np.asarray(xy, float)
+    return xy if not lattice else np.round(xy / lattice) * lattice
+
+
 def _block(world_cfg: Any, name: str) -> Mapping[str, Any]:
     return world_cfg[name] if isinstance(world_cfg, Mapping) else getattr(world_cfg, name)
 
@@ -51,6 +62,7 @@ def sample_problems(world_cfg: Any, n: int, seed: int | np.random.Generator,
         raise ValueError(f"n = {n}: allowed an integer >= 1")
     rng = np.random.default_rng(seed)
     pr, pl = _block(world_cfg, "problems"), _block(world_cfg, "plant")
+    lattice = float(_block(world_cfg, "skills").get("lattice", 0.0))
     out = []
     for _ in range(n):
         x = rng.uniform(*pr["start_x"])
@@ -59,6 +71,7 @@ def sample_problems(world_cfg: Any, n: int, seed: int | np.random.Generator,
                         rng.uniform(-1, 1) * pl["jitter_tilt"]])
         if world == "source":
             jit[:] = 0.0
+        x, y = on_lattice((x, y), lattice)
         out.append(Problem(start=np.array([x, y, 0.0, 1.0, 0.0]), goal=float(rng.uniform(*pr["goal"])),
                            plant_jitter=jit, world=world))
     return out

@@ -143,6 +143,27 @@ def test_problem_sampler_is_seeded_and_in_range(cfg):
     assert all((p.plant_jitter == 0).all() for p in sample_problems(cfg, 3, seed=0, world="source"))
 
 
+def test_a_lattice_puts_starts_and_move_targets_on_it(cfg):
+    """``skills.lattice``: every cup position on multiples of the spacing; absent, positions stay as drawn."""
+    import dataclasses
+
+    from sim.skills import Obstacles, cup_boundary, plan_schedule
+
+    lat = dataclasses.replace(cfg, skills={**cfg.skills, "lattice": 0.01})
+    free = sample_problems(cfg, 6, seed=3)
+    snapped = sample_problems(lat, 6, seed=3)
+    for p, q in zip(free, snapped):
+        np.testing.assert_allclose(q.start[:2], np.round(p.start[:2], 2), atol=1e-12)
+        assert p.goal == q.goal and not np.allclose(p.start[:2], q.start[:2])
+    obst = Obstacles(cfg.obstacle_bodies("source"), np.full(2, 0.03), np.full(2, 0.57))
+    acts = np.array([move(0.3137, 0.2261)])
+    for world_cfg, end in ((cfg, [0.3137, 0.2261]), (lat, [0.31, 0.23])):
+        sched = plan_schedule(world_cfg, np.array([0.42, 0.20, 0.0]), acts, obst, cup_boundary(cfg))
+        np.testing.assert_allclose(sched.poses[-1, :2], end, atol=1e-12)
+    with pytest.raises(ValueError, match=r"world.skills.lattice = -0.01: allowed 0"):
+        WorldConfig.from_mapping({**dataclasses.asdict(cfg), "skills": {**cfg.skills, "lattice": -0.01}})
+
+
 @pytest.mark.parametrize("kwargs,match", [
     ({"world": "moon"}, "world = 'moon'"),
     ({"actions": [[pour(3.0, 0.5)]]}, r"pour.theta = 3 outside its range \[0, 2.2\]"),
