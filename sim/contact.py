@@ -17,6 +17,7 @@ schedule is checked in ``tests/test_sim_contact.py``.
 from __future__ import annotations
 
 import numpy as np
+from task import on_lattice
 
 from .skills import CONTACT_MARGIN, MOVE, Obstacles, cup_boundary, tilt_about_lip, to_world
 from .world import WorldConfig, check_world
@@ -67,6 +68,7 @@ class ContactPredictor:
         self._obstacle_pts = np.concatenate(corners_w) if corners_w else np.zeros((0, 2))
         self._obstacle_owner = np.concatenate(owner) if owner else np.zeros(0, int)
         self.lip = cfg.controlled_cup.lip
+        self.lattice = float(cfg.skills.get("lattice", 0.0))  # where a move really ends (plan_schedule)
 
     # ------------------------------------------------------------------ paths
     def _poses(self, p0: np.ndarray, a: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -74,7 +76,7 @@ class ContactPredictor:
         move = np.rint(a[:, 0]) == MOVE
         out = np.empty(u.shape + (3,))
         if move.any():
-            goal = np.stack([a[move, 1], a[move, 2], p0[move, 2]], 1)
+            goal = np.concatenate([on_lattice(a[move, 1:3], self.lattice), p0[move, 2:3]], 1)
             out[move] = p0[move, None] + (goal - p0[move])[:, None] * u[move, :, None]
         pour = ~move
         if pour.any():
@@ -138,7 +140,7 @@ class ContactPredictor:
         who = np.full(n, -2)
         stop = p0.copy()
         move = np.rint(a[:, 0]) == MOVE
-        stop[move, :2] = a[move, 1:3]
+        stop[move, :2] = on_lattice(a[move, 1:3], self.lattice)
         if n == 0:
             return stuck, stop, who
         u = np.broadcast_to(np.linspace(0.0, 1.0, self.samples + 1)[1:], (n, self.samples))

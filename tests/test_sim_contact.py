@@ -67,6 +67,17 @@ def test_known_cases(world, predictor):
     np.testing.assert_allclose(stop[2], starts[2])  # a free pour returns upright where it started
 
 
+def test_moves_end_where_the_worlds_lattice_puts_them(world):
+    """With ``skills.lattice`` a move ends on the lattice (``sim.skills.plan_schedule``), and so does
+    its predicted path; without one, at the commanded target."""
+    import dataclasses
+
+    lat = ContactPredictor(dataclasses.replace(world, skills={**world.skills, "lattice": 0.01}))
+    start, act = np.array([[0.45, 0.30, 0.0]]), np.array([move(0.2137, 0.3049)])
+    np.testing.assert_allclose(lat.first_contact(start, act)[1][0], [0.21, 0.30, 0.0], atol=1e-12)
+    np.testing.assert_allclose(ContactPredictor(world).first_contact(start, act)[1][0], [0.2137, 0.3049, 0.0])
+
+
 def test_bad_arguments(world):
     with pytest.raises(ValueError, match="samples"):
         ContactPredictor(world, samples=1)
