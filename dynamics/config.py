@@ -86,7 +86,7 @@ class DataConfig:
     """
 
     seed: int = 0
-    n_batches: int = 16
+    n_batches: int = 48
     batch_size: int = 32
     min_actions: int = 4
     max_actions: int = 6

@@ -1,6 +1,6 @@
 """Train the dynamics model on source-world data, with a cache keyed by config hashes.
 
-    python -m dynamics.train                                   # default config (~16 batches of 32)
+    python -m dynamics.train                                   # default config (48 batches of 32)
     python -m dynamics.train --config-name quick               # 4 batches: the main job's size
     python -m dynamics.train data.n_batches=4 train.max_epochs=50 cache_root=/tmp/dyn
 
