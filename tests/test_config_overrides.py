@@ -163,7 +163,7 @@ def test_documented_overrides_arrive():
     """README's command table, configs/config.yaml, the experiment and planner YAML comments, BENCHMARKS.md."""
     exp, _, pc, _ = settings(["experiment=paper", "method=active_balanced", "seed=2"])
     assert (exp.name, exp.methods, exp.iterations, exp.candidates) == ("paper", ("active_balanced",), 20, 9)
-    assert (pc.n_candidates, pc.propagation_budget, pc.d_max) == (9, 20000, 0.07)
+    assert (pc.n_candidates, pc.propagation_budget, pc.d_max) == (9, 10000, 0.07)
     assert compose_config(["seed=2"])["seed"] == 2
     assert settings(["experiment.refine_steps=4"])[0].refine_steps == 4
     for e in EXPERIMENTS:  # README: the model without the known static geometry
@@ -176,7 +176,7 @@ def test_documented_overrides_arrive():
     assert settings(["experiment.planner_propagation_budget=20000"])[2].propagation_budget == 20000
     exp, world, pc, _ = settings(["world=fine", "world.sim.arch=gpu", "experiment=paper", "method=active_balanced"])
     assert world.sim["dx"] == 0.005 and world.sim["arch"] == "gpu" and exp.name == "paper"
-    assert (pc.n_candidates, pc.propagation_budget) == (9, 20000)
+    assert (pc.n_candidates, pc.propagation_budget) == (9, 10000)
     exp, _, pc, _ = settings(["experiment=tiny"])
     assert (pc.n_candidates, pc.propagation_budget, pc.time_budget) == (2, 500, 30.0)
     # README: acquisitions are a config group; your own by _target_ (configs/acquisition/, configs/methods/)
