@@ -205,21 +205,34 @@ def format_table(r: dict[str, Any]) -> str:
     return "\n".join(f"{a:<{w}}  {b}" for a, b in rows)
 
 
+def add_batch_arguments(ap: argparse.ArgumentParser, iteration: int = 0) -> None:
+    """The options of a benchmark that plans the experiment's own batches (:func:`experiment_batches`)."""
+    ap.add_argument("--mde", default=None, metavar="CHECKPOINT",
+                    help="a saved MDE, e.g. a run's mde_iterNNN.pt (default: none, model-only planning)")
+    ap.add_argument("--seed", type=int, default=0, help="the run seed the problems and plan seeds derive from")
+    ap.add_argument("--iteration", type=int, default=iteration,
+                    help="the iteration the plan seeds and training beta are of")
+    ap.add_argument("--repeat", type=int, default=2, help="timed repeats of each batch and path (median reported)")
+    ap.add_argument("--out", type=Path, default=None, help="write the result as JSON here")
+    ap.add_argument("overrides", nargs="*", help="Hydra overrides of the experiment config (default experiment=quick)")
+
+
+def check_batch_arguments(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Refuse bad values of :func:`add_batch_arguments`' options before any compute."""
+    if args.repeat < 1:
+        ap.error("--repeat must be >= 1")
+    if args.mde is not None and not Path(args.mde).is_file():
+        ap.error(f"--mde {args.mde}: no such file")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.planner_pool", description=__doc__.split("\n\n")[0])
     ap.add_argument("--workers", type=int, default=2, help="worker processes to compare with in-process planning")
-    ap.add_argument("--mde", default=None, metavar="CHECKPOINT",
-                    help="a saved mde.HeteroscedasticGPMDE, e.g. a run's mde_iterNNN.pt (default: none)")
-    ap.add_argument("--seed", type=int, default=0, help="the run seed the problems and plan seeds derive from")
-    ap.add_argument("--iteration", type=int, default=0, help="the iteration the plan seeds and training beta are of")
-    ap.add_argument("--repeat", type=int, default=2, help="timed repeats of each batch on each side (median reported)")
-    ap.add_argument("--out", type=Path, default=None, help="write the result as JSON here")
-    ap.add_argument("overrides", nargs="*", help="Hydra overrides of the experiment config (default experiment=quick)")
+    add_batch_arguments(ap, iteration=0)
     args = ap.parse_args(argv)
     if args.workers < 2:
         ap.error("--workers must be >= 2 (workers=1 is the in-process baseline, always measured)")
-    if args.repeat < 1:
-        ap.error("--repeat must be >= 1")
+    check_batch_arguments(ap, args)
     r = run(args.overrides, workers=args.workers, mde_path=args.mde, seed=args.seed, iteration=args.iteration,
             repeat=args.repeat)
     report(format_table(r), r, args.out)

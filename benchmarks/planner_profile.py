@@ -21,11 +21,10 @@ import cProfile
 import pstats
 import statistics
 import time
-from pathlib import Path
 from typing import Any, Sequence
 
 from benchmarks._cli import report
-from benchmarks.planner_pool import experiment_batches, fingerprint
+from benchmarks.planner_pool import add_batch_arguments, check_batch_arguments, experiment_batches, fingerprint
 from planner.pool import PlanPool
 from planner.results import CandidateSet
 
@@ -134,17 +133,9 @@ def format_table(r: dict[str, Any]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.planner_profile", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--mde", default=None, metavar="CHECKPOINT", help="a run's mde_iterNNN.pt (default: no MDE)")
-    ap.add_argument("--seed", type=int, default=0, help="the run seed the problems and plan seeds derive from")
-    ap.add_argument("--iteration", type=int, default=3, help="the iteration the plan seeds and training beta are of")
-    ap.add_argument("--repeat", type=int, default=2, help="timed repeats per path (median reported)")
-    ap.add_argument("--out", type=Path, default=None, help="write the result as JSON here")
-    ap.add_argument("overrides", nargs="*", help="Hydra overrides of the experiment config (default experiment=quick)")
+    add_batch_arguments(ap, iteration=3)
     args = ap.parse_args(argv)
-    if args.repeat < 1:
-        ap.error("--repeat must be >= 1")
-    if args.mde is not None and not Path(args.mde).is_file():
-        ap.error(f"--mde {args.mde}: no such file")
+    check_batch_arguments(ap, args)
     r = run(args.overrides, mde_path=args.mde, seed=args.seed, iteration=args.iteration, repeat=args.repeat)
     report(format_table(r), r, args.out)
     return 0

@@ -152,6 +152,7 @@ class ModelConfig:
 
 
 LOSSES = ("distance", "scaled_mse")
+LR_SCHEDULES = ("constant", "cosine")
 
 
 @dataclass(frozen=True)
@@ -162,16 +163,21 @@ class TrainConfig:
     distance weights, i.e. exactly the MDE's label, and being L1-like it is robust to the rare
     stuck pours; ``scaled_mse`` is the squared error in per-skill output units (sensitive to those
     rare events: a residual that is almost always zero gets a tiny scale).
+
+    ``lr_schedule``: ``constant`` keeps ``lr``; ``cosine`` anneals it to 0 over ``max_epochs``
+    (``torch.optim.lr_scheduler.CosineAnnealingLR``), so the last epochs settle into a minimum
+    instead of bouncing around it at the full step size.
     """
 
     seed: int = 0
     loss: str = "distance"
     val_fraction: float = 0.15
-    max_epochs: int = 1000
-    batch_size: int = 128
-    lr: float = 2.0e-3
+    max_epochs: int = 300
+    batch_size: int = 256
+    lr: float = 4.0e-3
     weight_decay: float = 1.0e-5
     patience: int = 200
+    lr_schedule: str = "cosine"
     #: torch intra-op threads while training (restored afterwards); fixed for reproducibility
     threads: int = 1
 
@@ -180,6 +186,8 @@ class TrainConfig:
         s("seed", _int("train.seed", self.seed, 0))
         if self.loss not in LOSSES:
             raise DynamicsError(f"train.loss = {self.loss!r}: allowed one of {LOSSES}")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise DynamicsError(f"train.lr_schedule = {self.lr_schedule!r}: allowed one of {LR_SCHEDULES}")
         if not 0.0 < float(self.val_fraction) < 1.0:
             raise DynamicsError(f"train.val_fraction = {self.val_fraction}: allowed (0, 1)")
         s("val_fraction", float(self.val_fraction))
@@ -349,8 +357,16 @@ def plant_dict(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
 
 def model_hash(cfg: DynamicsConfig, dhash: str | None = None, world_cfg: Any = None) -> str:
     """Identity of a checkpoint: dataset identity + model + training fields + format."""
+    train = _plain(cfg.train)
+    for k, off in NEUTRAL_TRAIN_SETTINGS.items():  # as NEUTRAL_SOLVER_SETTINGS: cached checkpoints stay valid
+        if train.get(k) == off:
+            train.pop(k)
     return _digest({"format": MODEL_FORMAT_VERSION, "data": dhash or data_hash(cfg, world_cfg),
-                    "model": _plain(cfg.model), "train": _plain(cfg.train)})
+                    "model": _plain(cfg.model), "train": train})
+
+
+#: training settings added after checkpoints were cached, with the value that trains exactly as before
+NEUTRAL_TRAIN_SETTINGS = {"lr_schedule": "constant"}
 
 
 # ---------------------------------------------------------------------------------- helpers

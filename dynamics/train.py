@@ -97,6 +97,8 @@ def fit(ds: Transitions, model_cfg: ModelConfig | None = None, train_cfg: TrainC
         S, A, SN = (torch.from_numpy(np.ascontiguousarray(x)) for x in (ds.s, ds.a, ds.s_next))
         tr, va = torch.from_numpy(tr_idx), torch.from_numpy(va_idx)
         opt = torch.optim.Adam(model.parameters(), lr=tc.lr, weight_decay=tc.weight_decay)
+        sched = (torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=tc.max_epochs)
+                 if tc.lr_schedule == "cosine" else None)
         gen = torch.Generator().manual_seed(tc.seed)
 
         def loss_of(idx: torch.Tensor) -> torch.Tensor:
@@ -120,6 +122,8 @@ def fit(ds: Transitions, model_cfg: ModelConfig | None = None, train_cfg: TrainC
                 loss.backward()
                 opt.step()
                 total += float(loss.detach()) * len(idx)
+            if sched is not None:
+                sched.step()
             model.eval()
             with torch.no_grad():
                 val = float(loss_of(va)) if len(va) else total / len(tr)
@@ -136,7 +140,7 @@ def fit(ds: Transitions, model_cfg: ModelConfig | None = None, train_cfg: TrainC
         model.eval()
     metrics = {
         "epochs_run": len(history), "best_epoch": best_epoch, "best_val_loss": best,
-        "final_train_loss": history[-1][0], "n_train": int(len(tr_idx)), "n_val": int(len(va_idx)),
+        "final_train_loss": history[-1][0], "final_lr": opt.param_groups[0]["lr"], "n_train": int(len(tr_idx)), "n_val": int(len(va_idx)),
         "untrained_skills": missing, "wall_seconds": time.perf_counter() - t0,
         "val_errors": error_table(model, ds.subset(va_idx), w) if len(va_idx) else {},
         "history": [[round(a, 6), round(b, 6)] for a, b in history],

@@ -38,6 +38,7 @@ def test_hydra_compose_with_overrides_and_quick_preset():
     ({"train": {"val_fraction": 1.0}}, r"train.val_fraction = 1.0: allowed \(0, 1\)"),
     ({"train": {"lr": 0}}, r"train.lr = 0: allowed > 0"),
     ({"train": {"loss": "l2"}}, r"train.loss = 'l2': allowed one of \('distance', 'scaled_mse'\)"),
+    ({"train": {"lr_schedule": "step"}}, r"train.lr_schedule = 'step': allowed one of \('constant', 'cosine'\)"),
 ])
 def test_bad_values_name_field_and_range(d, match):
     with pytest.raises(DynamicsError, match=match):
@@ -51,12 +52,18 @@ def test_hash_scopes():
     c = DynamicsConfig.from_dict({"data": {"n_batches": 3}})
     assert data_hash(c) != dh and model_hash(c) != mh
     # model / training fields change only the checkpoint hash
-    for d in ({"train": {"lr": 1e-3}}, {"model": {"hidden": [64]}}):
+    for d in ({"train": {"lr": 1e-3}}, {"train": {"lr_schedule": "constant"}}, {"model": {"hidden": [64]}}):
         c = DynamicsConfig.from_dict(d)
         assert data_hash(c) == dh and model_hash(c) != mh
     # evaluation, cache location and progress bars change neither
     c = DynamicsConfig.from_dict({"eval": {"seed": 5}, "cache_root": "/elsewhere", "progress": False})
     assert data_hash(c) == dh and model_hash(c) == mh
+
+
+def test_a_setting_added_later_keeps_older_checkpoints_valid_at_its_neutral_value():
+    # session 9's training (before lr_schedule existed): its checkpoint hash, computed by that code
+    then = {"train": {"max_epochs": 1000, "batch_size": 128, "lr": 2e-3, "lr_schedule": "constant"}}
+    assert model_hash(DynamicsConfig.from_dict(then), "0" * 16) == "438a5d2920de5cbe"
 
 
 def test_world_content_is_part_of_the_data_hash(tmp_path):

@@ -45,6 +45,16 @@ def test_seeded_training_is_deterministic(loss):
     assert not all(torch.equal(sa[k], c.state_dict()[k]) for k in sa)
 
 
+def test_cosine_schedule_anneals_the_step_size_to_zero():
+    ds = synthetic_transitions(60, n_steps=3, seed=3)
+    runs = {s: fit(ds, SMALL, TrainConfig(max_epochs=6, patience=6, batch_size=32, seed=5, lr=2e-3, lr_schedule=s))
+            for s in ("constant", "cosine")}
+    assert runs["constant"].info["training"]["final_lr"] == pytest.approx(2e-3)
+    assert runs["cosine"].info["training"]["final_lr"] == pytest.approx(0.0, abs=1e-12)
+    a, b = (runs[s].state_dict() for s in ("constant", "cosine"))
+    assert not all(torch.equal(a[k], b[k]) for k in a)  # the schedule acts on the weights
+
+
 def test_split_keeps_trajectories_whole():
     traj = np.repeat(np.arange(20), 3)
     tr, va = split_by_trajectory(traj, 0.25, seed=0)
