@@ -18,7 +18,7 @@ from .data import Transitions, generate_source_dataset, generate_transitions
 from .model import LearnedDynamics
 
 # imported lazily so that `python -m dynamics.train` does not find its own module pre-imported
-_LAZY = {"ContactAwareDynamics": "contact", "cache_paths": "train", "error_table": "train", "fit": "train", "load_or_generate_dataset": "train",
+_LAZY = {"ContactAwareDynamics": "contact", "DynamicsEnsemble": "ensemble", "cache_paths": "train", "error_table": "train", "fit": "train", "load_or_generate_dataset": "train",
          "load_or_train": "train"}
 
 
@@ -31,7 +31,7 @@ def __getattr__(name: str):
 
 
 __all__ = [
-    "ContactAwareDynamics", "DataConfig", "DynamicsConfig", "DynamicsError", "EvalConfig", "LearnedDynamics", "ModelConfig", "TrainConfig",
+    "ContactAwareDynamics", "DataConfig", "DynamicsConfig", "DynamicsEnsemble", "DynamicsError", "EvalConfig", "LearnedDynamics", "ModelConfig", "TrainConfig",
     "Transitions", "cache_paths", "data_hash", "error_table", "fit", "generate_source_dataset",
     "generate_transitions", "load_or_generate_dataset", "load_or_train", "model_hash",
 ]

@@ -129,7 +129,12 @@ class DataConfig:
 
 @dataclass(frozen=True)
 class ModelConfig:
-    """One MLP per skill; see :class:`dynamics.model.LearnedDynamics` for the output structure."""
+    """One MLP per skill; see :class:`dynamics.model.LearnedDynamics` for the output structure.
+
+    ``ensemble`` > 1: the model is the mean of that many such models (:class:`dynamics.ensemble.
+    DynamicsEnsemble`), each trained on its own trajectory split and initialisation; a planner
+    searching a single model finds its idiosyncratic errors, the mean has fewer of them.
+    """
 
     hidden: tuple[int, ...] = (128, 128, 128)
     activation: str = "silu"
@@ -137,6 +142,7 @@ class ModelConfig:
     #: component that never changes in the data does not get an infinite loss weight
     min_pose_scale: float = 0.002
     min_fraction_scale: float = 0.01
+    ensemble: int = 1
 
     def __post_init__(self) -> None:
         h = tuple(_int("model.hidden[]", v, 1) for v in self.hidden)
@@ -149,6 +155,7 @@ class ModelConfig:
             if not float(getattr(self, k)) > 0:
                 raise DynamicsError(f"model.{k} = {getattr(self, k)}: allowed > 0")
             object.__setattr__(self, k, float(getattr(self, k)))
+        object.__setattr__(self, "ensemble", _int("model.ensemble", self.ensemble, 1))
 
 
 LOSSES = ("distance", "scaled_mse")
@@ -357,16 +364,29 @@ def plant_dict(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
 
 def model_hash(cfg: DynamicsConfig, dhash: str | None = None, world_cfg: Any = None) -> str:
     """Identity of a checkpoint: dataset identity + model + training fields + format."""
-    train = _plain(cfg.train)
-    for k, off in NEUTRAL_TRAIN_SETTINGS.items():  # as NEUTRAL_SOLVER_SETTINGS: cached checkpoints stay valid
-        if train.get(k) == off:
-            train.pop(k)
-    return _digest({"format": MODEL_FORMAT_VERSION, "data": dhash or data_hash(cfg, world_cfg),
-                    "model": _plain(cfg.model), "train": train})
+    parts = {"model": _plain(cfg.model), "train": _plain(cfg.train)}
+    for part, neutral in (("model", NEUTRAL_MODEL_SETTINGS), ("train", NEUTRAL_TRAIN_SETTINGS)):
+        for k, off in neutral.items():  # as NEUTRAL_SOLVER_SETTINGS: cached checkpoints stay valid
+            if parts[part].get(k) == off:
+                parts[part].pop(k)
+    return _digest({"format": MODEL_FORMAT_VERSION, "data": dhash or data_hash(cfg, world_cfg), **parts})
 
 
-#: training settings added after checkpoints were cached, with the value that trains exactly as before
+#: model and training settings added after checkpoints were cached, with the value that gives the model
+#: (and trains it) exactly as before
+NEUTRAL_MODEL_SETTINGS = {"ensemble": 1}
 NEUTRAL_TRAIN_SETTINGS = {"lr_schedule": "constant"}
+
+
+def ensemble_member(cfg: DynamicsConfig, k: int) -> DynamicsConfig:
+    """The config of member ``k`` of ``cfg``'s ensemble: a single model trained with seed
+    ``train.seed * ensemble + k``, so that the ensembles of different seeds share no member and
+    every member is cached (and reused) as a model of its own."""
+    n = cfg.model.ensemble
+    if not 0 <= k < n:
+        raise DynamicsError(f"ensemble member {k}: allowed 0..{n - 1} (model.ensemble = {n})")
+    return dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, ensemble=1),
+                               train=dataclasses.replace(cfg.train, seed=cfg.train.seed * n + k))
 
 
 # ---------------------------------------------------------------------------------- helpers

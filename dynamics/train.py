@@ -33,7 +33,8 @@ import safeio
 from task import STATE_NAMES
 
 from .config import (TRAIN_COMMAND, DataConfig, DynamicsConfig, DynamicsError, ModelConfig, TrainConfig,
-                     data_hash, model_hash)
+                     data_hash, ensemble_member, model_hash)
+from .ensemble import DynamicsEnsemble
 from .data import MOVE, POUR, Transitions, load_world
 from .model import SKILLS, LearnedDynamics
 
@@ -260,18 +261,21 @@ def _finish_data(path: Path, c: DynamicsConfig, dh: str) -> None:
 
 def load_or_train(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_root: str | Path | None = None,
                   *, world_cfg: Any = None, generator: Generator | None = None,
-                  progress: bool | None = None) -> LearnedDynamics:
+                  progress: bool | None = None) -> LearnedDynamics | DynamicsEnsemble:
     """The trained model for ``cfg`` (a DynamicsConfig or a plain / OmegaConf mapping of its fields).
 
     Loads the cached checkpoint if its config hash matches; otherwise trains (and, if needed,
     generates the dataset first). ``cache_root`` overrides ``cfg.cache_root``; ``world_cfg`` (the
     experiment's world config: WorldConfig or mapping) overrides the ``data.world`` file and is
-    part of both hashes.
+    part of both hashes. ``model.ensemble`` > 1: a :class:`~dynamics.ensemble.DynamicsEnsemble` whose
+    members are cached as single models (:func:`dynamics.config.ensemble_member`).
     """
     import yaml
 
     c = _as_config(cfg)
     p = cache_paths(c, cache_root, world_cfg)
+    if c.model.ensemble > 1:
+        return _load_or_train_ensemble(c, p, world_cfg=world_cfg, generator=generator, progress=progress)
     ckpt, mh = p["checkpoint"], p["model_hash"]
     folder = ckpt.parent
     if p["dataset"].is_file() and _unfinished_data(p["dataset"]):  # finish it even when the model is cached
@@ -300,6 +304,15 @@ def load_or_train(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_r
     return LearnedDynamics.load(ckpt, expected_hash=mh)
 
 
+def _load_or_train_ensemble(c: DynamicsConfig, p: dict[str, Any], **kwargs: Any) -> DynamicsEnsemble:
+    """The ensemble of ``c``: each member loaded (or trained) and cached as a single model of its own."""
+    members = [load_or_train(ensemble_member(c, k), p["root"], **kwargs) for k in range(c.model.ensemble)]
+    return DynamicsEnsemble(members, info={
+        "model_hash": p["model_hash"], "data_hash": p["data_hash"], "config": c.to_dict(),
+        "members": [m.info["model_hash"] for m in members], "dataset": members[0].info.get("dataset"),
+        "training": {"members": [{k: v for k, v in m.info["training"].items() if k != "history"} for m in members]}})
+
+
 def _remove_orphans(*folders: Path) -> None:
     """Temporary files a killed writer left (call with the folder's lock held)."""
     for f in folders:
@@ -324,16 +337,20 @@ def _run(cfg: Any) -> LearnedDynamics:
     c = DynamicsConfig.from_dict(cfg)
     p = cache_paths(c)
     t0 = time.perf_counter()
-    had_data, had_model = p["dataset"].is_file(), p["checkpoint"].is_file()
+    singles = [ensemble_member(c, k) for k in range(c.model.ensemble)] if c.model.ensemble > 1 else [c]
+    had_data = p["dataset"].is_file()
+    had_model = [cache_paths(m)["checkpoint"].is_file() for m in singles]
     model = load_or_train(c)
     info = model.info
-    tr = info["training"]
     print(f"dataset    {p['dataset']} ({'cached' if had_data else 'generated'}): {info['dataset']}")
     if info["dataset"].get("generation_wall_seconds") is not None:
         print(f"           generation wall time {info['dataset']['generation_wall_seconds']:.1f} s")
-    print(f"checkpoint {p['checkpoint']} ({'cached' if had_model else 'trained'}): best epoch {tr['best_epoch']} "
-          f"of {tr['epochs_run']}, val loss {tr['best_val_loss']:.4f}, training wall time {tr['wall_seconds']:.1f} s")
-    print(format_errors(tr["val_errors"], "validation split (source world), mean absolute errors:"))
+    for m, had in zip(getattr(model, "members", [model]), had_model):
+        tr = m.info["training"]
+        print(f"checkpoint {cache_paths(m.info['config'])['checkpoint']} ({'cached' if had else 'trained'}): "
+              f"best epoch {tr['best_epoch']} of {tr['epochs_run']}, val loss {tr['best_val_loss']:.4f}, "
+              f"training wall time {tr['wall_seconds']:.1f} s")
+        print(format_errors(tr["val_errors"], "validation split (source world), mean absolute errors:"))
     print(f"total wall time of this command {time.perf_counter() - t0:.1f} s")
     return model
 

@@ -62,7 +62,8 @@ def test_hash_scopes():
 
 def test_a_setting_added_later_keeps_older_checkpoints_valid_at_its_neutral_value():
     # session 9's training (before lr_schedule existed): its checkpoint hash, computed by that code
-    then = {"train": {"max_epochs": 1000, "batch_size": 128, "lr": 2e-3, "lr_schedule": "constant"}}
+    then = {"model": {"ensemble": 1},
+            "train": {"max_epochs": 1000, "batch_size": 128, "lr": 2e-3, "lr_schedule": "constant"}}
     assert model_hash(DynamicsConfig.from_dict(then), "0" * 16) == "438a5d2920de5cbe"
 
 

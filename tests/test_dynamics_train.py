@@ -123,6 +123,34 @@ def test_cache_reuse_and_invalidation(tmp_path, counted):
     assert m1.info["model_hash"] == p["model_hash"] and m1.info["config"]["data"]["n_batches"] == 1
 
 
+def test_an_ensemble_is_the_mean_of_members_cached_as_single_models(tmp_path, counted):
+    from dynamics import DynamicsEnsemble, DynamicsError
+    from dynamics.config import DynamicsConfig, ensemble_member
+
+    ens = load_or_train(tiny(model={"ensemble": 2}, train={"seed": 1}), tmp_path)
+    assert isinstance(ens, DynamicsEnsemble) and (counted["gen"], counted["fit"]) == (1, 2)
+    # member k of seed s is the single model of seed s * n + k: cached, so loading it trains nothing
+    members = [load_or_train(tiny(train={"seed": s}), tmp_path) for s in (2, 3)]
+    assert (counted["gen"], counted["fit"]) == (1, 2)
+    assert ens.info["members"] == [m.info["model_hash"] for m in members]
+    assert ens.info["model_hash"] == cache_paths(tiny(model={"ensemble": 2}, train={"seed": 1}), tmp_path)["model_hash"]
+    s = np.array([[0.4, 0.2, 0, 1, 0], [0.3, 0.25, 0, 0.6, 0.3]])
+    a = np.array([[1, 1.4, 0.5], [0, 0.35, 0.2]])
+    mean = (members[0].predict_np(s, a) + members[1].predict_np(s, a)) / 2
+    np.testing.assert_allclose(ens.predict_np(s, a), mean, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ens.predict_one(s[0], a[0]), mean[0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ens.predict(torch.tensor(s), torch.tensor(a)).numpy(), mean, atol=1e-5)
+    assert not np.allclose(members[0].predict_np(s, a), members[1].predict_np(s, a))  # two different models
+    # loading the ensemble again trains nothing
+    load_or_train(tiny(model={"ensemble": 2}, train={"seed": 1}), tmp_path)
+    assert counted["fit"] == 2
+    c = DynamicsConfig.from_dict(tiny(model={"ensemble": 2}))
+    with pytest.raises(DynamicsError, match=r"ensemble member 2: allowed 0..1"):
+        ensemble_member(c, 2)
+    with pytest.raises(DynamicsError, match=r"model.ensemble = 0: allowed"):
+        DynamicsConfig.from_dict(tiny(model={"ensemble": 0}))
+
+
 def test_stale_or_corrupt_cache_files_give_clear_errors(tmp_path, counted):
     load_or_train(tiny(), tmp_path)
     p, q = cache_paths(tiny(), tmp_path), cache_paths(tiny(data={"seed": 7}), tmp_path)
