@@ -7,7 +7,8 @@ Times ``predict`` (torch, batched, input checks included) and the numpy path (``
 pours), with 1 torch thread (the
 planner's setting) and with torch's default thread count. Uses the cached checkpoint of the
 config if there is one, else (or with ``--untrained``) a freshly initialised network of the same
-architecture: the cost does not depend on the weights. Best of several repeats; prints a table
+architecture: the cost does not depend on the weights (an ensemble: one member; it costs n of
+them). Best of several repeats; prints a table
 and writes JSON.
 """
 
@@ -103,10 +104,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--repeats", type=int, default=5, help="timing rounds (the best is reported)")
     ap.add_argument("overrides", nargs="*", help="Hydra-style overrides of configs/dynamics")
     args = ap.parse_args(argv)
+    from dynamics.config import ensemble_member
     from dynamics.evaluate import compose_config
     from dynamics.train import cache_paths
 
     cfg = compose_config(args.config_name, args.overrides)
+    if cfg.model.ensemble > 1:  # an ensemble costs n of its members: time one
+        cfg = ensemble_member(cfg, 0)
     ckpt = cache_paths(cfg)["checkpoint"]
     if ckpt.is_file() and not args.untrained:
         model, source = LearnedDynamics.load(ckpt), str(ckpt)

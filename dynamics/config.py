@@ -142,7 +142,7 @@ class ModelConfig:
     #: component that never changes in the data does not get an infinite loss weight
     min_pose_scale: float = 0.002
     min_fraction_scale: float = 0.01
-    ensemble: int = 1
+    ensemble: int = 3
 
     def __post_init__(self) -> None:
         h = tuple(_int("model.hidden[]", v, 1) for v in self.hidden)

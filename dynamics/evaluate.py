@@ -7,7 +7,8 @@ cache) a fresh source-world test set and a small target-world set (plant present
 jittered per trajectory like a planning problem's), and reports for each group the mean absolute
 error per state component and the state distance d(f_hat(s, a), s') (``sim.world`` weights):
 
-* ``source_val``: the training run's validation split (held-out source trajectories);
+* ``source_val``: the training run's validation split (held-out source trajectories; for an
+  ensemble, the trajectories held out by every member);
 * ``source_test``: fresh source-world trajectories (``eval.seed``);
 * ``target_far`` / ``target_near``: target-world transitions whose cup path and (for a pour) the
   water's fall region stay farther than / come within ``eval.near_radius`` of the plant (see
@@ -29,7 +30,7 @@ import numpy as np
 
 import safeio
 
-from .config import DynamicsConfig, _digest, _plain, data_hash, plant_dict
+from .config import DynamicsConfig, _digest, _plain, data_hash, ensemble_member, plant_dict
 from .data import CLEARANCE_CAP, Transitions, generate_transitions, load_world, plant_clearance
 from .train import (CONFIG_DIR, STATE_NAMES, _errors, _locked, cache_paths, format_errors, load_or_generate_dataset,
                     load_or_train, split_by_trajectory)
@@ -75,7 +76,10 @@ def evaluate(cfg: DynamicsConfig, cache_root: str | Path | None = None, world_cf
     """All groups' error tables plus per-transition (clearance, d) pairs of the target set."""
     model = load_or_train(cfg, cache_root, world_cfg=world_cfg)
     train_ds = load_or_generate_dataset(cfg, cache_root, world_cfg=world_cfg)
-    _, va = split_by_trajectory(train_ds.traj, cfg.train.val_fraction, cfg.train.seed)
+    members = [ensemble_member(cfg, k) for k in range(cfg.model.ensemble)] if cfg.model.ensemble > 1 else [cfg]
+    va = np.arange(len(train_ds))  # held out: in the validation split of every member (few rows for an ensemble)
+    for m in members:
+        va = np.intersect1d(va, split_by_trajectory(train_ds.traj, m.train.val_fraction, m.train.seed)[1])
     sets = eval_sets(cfg, cache_root, world_cfg)
     wcfg = load_world(cfg.data, world_cfg)
     w = wcfg.distance_weights
@@ -115,7 +119,8 @@ def evaluate(cfg: DynamicsConfig, cache_root: str | Path | None = None, world_cf
                 "near": f"plant within {cfg.eval.near_radius} m of the cup outline along the action's executed "
                         "path or, for a pour, of the water's fall region (between the vertical below the pouring "
                         f"lip and the ballistic path of water leaving it at {cfg.eval.stream_speed} m/s towards -x)",
-                "source_val": "validation split (whole held-out trajectories) of the training data",
+                "source_val": "validation split (whole held-out trajectories) of the training data; "
+                              "for an ensemble, the trajectories every member held out",
                 "source_test": f"fresh source-world trajectories, seed {cfg.eval.seed}",
             }}
 
