@@ -1,7 +1,9 @@
 """Learned dynamics model f_hat(s, a) of the pouring task, trained on the source world only.
 
 The paper's inaccurate model: an MLP per skill trained on cheap source-world (no plant) simulator
-data, used by the planner in the target world, where it is wrong near the plant.
+data, used by the planner in the target world, where it is wrong near the plant. By default the
+mean of three such models (``model.ensemble``, :class:`DynamicsEnsemble`): a planner searching one
+model finds its idiosyncratic errors.
 
     from dynamics import load_or_train
     model = load_or_train(cfg.dynamics, world_cfg=cfg.world)  # cached by config hash; trains if missing
