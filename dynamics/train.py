@@ -141,7 +141,8 @@ def fit(ds: Transitions, model_cfg: ModelConfig | None = None, train_cfg: TrainC
         model.eval()
     metrics = {
         "epochs_run": len(history), "best_epoch": best_epoch, "best_val_loss": best,
-        "final_train_loss": history[-1][0], "final_lr": opt.param_groups[0]["lr"], "n_train": int(len(tr_idx)), "n_val": int(len(va_idx)),
+        "final_train_loss": history[-1][0], "final_lr": opt.param_groups[0]["lr"],
+        "n_train": int(len(tr_idx)), "n_val": int(len(va_idx)),
         "untrained_skills": missing, "wall_seconds": time.perf_counter() - t0,
         "val_errors": error_table(model, ds.subset(va_idx), w) if len(va_idx) else {},
         "history": [[round(a, 6), round(b, 6)] for a, b in history],
@@ -332,7 +333,7 @@ def format_errors(table: Mapping[str, Any], title: str = "") -> str:
     return "\n".join(lines)
 
 
-def _run(cfg: Any) -> LearnedDynamics:
+def _run(cfg: Any) -> LearnedDynamics | DynamicsEnsemble:
     logging.basicConfig(level=logging.INFO)
     c = DynamicsConfig.from_dict(cfg)
     p = cache_paths(c)
