@@ -26,6 +26,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from benchmarks._cli import report
+from task import state_distance
 
 
 def scores(pred: np.ndarray, ds: Any) -> dict[str, float]:
@@ -33,7 +34,7 @@ def scores(pred: np.ndarray, ds: Any) -> dict[str, float]:
     true = ds.s_next.astype(float)
     pour = ds.skill() == 1
     moved = pour & (np.abs(ds.s_next[:, 4] - ds.s[:, 4]) > 0.02)
-    d = np.linalg.norm(pred[:, :3] - true[:, :3], axis=1) + np.abs(pred[:, 3:] - true[:, 3:]).sum(1)
+    d = state_distance(pred, true)
     e = pred[:, 4] - true[:, 4]
     return {"pour_mean_d": float(d[pour].mean()), "pour_mae_v_tgt": float(np.abs(e[pour]).mean()),
             "moved_mae_v_tgt": float(np.abs(e[moved]).mean()), "moved_bias_v_tgt": float(e[moved].mean()),

@@ -25,7 +25,7 @@ def test_variants_are_scored_on_held_out_batches(tmp_path, monkeypatch, capsys):
         v = r["variants"][name]
         assert [row["seed"] for row in v["per_seed"]] == [0, 1]
         assert v["per_seed"][0]["pour_mean_d"] != v["per_seed"][1]["pour_mean_d"]  # two models
-        assert v["mean_of_seeds"]["n_pour"] + 0 > 0 and v["mean_of_seeds"]["pour_mae_v_tgt"] > 0
+        assert v["mean_of_seeds"]["n_pour"] > 0 and v["mean_of_seeds"]["pour_mae_v_tgt"] > 0
     assert r["variants"]["a"]["per_seed"][0] != r["variants"]["b"]["per_seed"][0]
     assert "mean of seeds" in capsys.readouterr().out
     with pytest.raises(ValueError, match=r"--heldout-batches 1: allowed > data.n_batches = 1"):
