@@ -7,8 +7,10 @@ runs the batches :mod:`benchmarks.planner_pool` builds (the run's test plans and
 chunk, in-process) and reports:
 
 * propagations (model rows) per second, with the model called through its numpy path (the
-  planner's default for a CPU model with ``predict_np``) and through torch (the path before), timed
-  alternately in one process, medians of ``--repeat``; whether the plans agree;
+  planner's default for a CPU model with ``predict_np``) and through torch (the path before session
+  9), and for an ensemble also through its members' numpy paths one at a time (the path before
+  session 11, when the ensemble's weights were not yet stacked), timed alternately in one process,
+  medians of ``--repeat``; whether the plans agree;
 * one profiled pass per path (``cProfile``): the share of the planning time spent in the learned
   model, the contact check (``sim.contact.ContactPredictor.first_contact``), the MDE and the
   rest (OMPL's loop, the propagator's bookkeeping, the profiler's own overhead).
@@ -31,7 +33,8 @@ from planner.results import CandidateSet
 #: profiled functions whose cumulative time makes each part (file suffix, function name)
 PARTS = {
     "contact check": [("sim/contact.py", "first_contact")],
-    "learned model": [("dynamics/model.py", "predict_np"), ("dynamics/model.py", "predict")],
+    "learned model": [("dynamics/model.py", "predict_np"), ("dynamics/model.py", "predict"),
+                      ("dynamics/ensemble.py", "predict_np")],
     "MDE": [("planner/rrt.py", "deviation")],
 }
 TOTAL = ("planner/rrt.py", "_solve_with_ompl")
@@ -60,6 +63,42 @@ class _TorchPath:
         return self.model.predict(states, actions)
 
 
+class _MembersOneByOne:
+    """An ensemble whose numpy path averages its members' own numpy paths one at a time (before session 11)."""
+
+    def __init__(self, ensemble: Any) -> None:
+        self.ensemble = ensemble
+
+    def predict(self, states: Any, actions: Any) -> Any:
+        return self.ensemble.predict(states, actions)
+
+    def predict_np(self, states: Any, actions: Any) -> Any:
+        members = self.ensemble.members
+        out = members[0].predict_np(states, actions)
+        for m in members[1:]:
+            out = out + m.predict_np(states, actions)
+        return out / len(members)
+
+
+def _path_models(dyn: Any) -> dict[str, Any]:
+    """The model as each timed path sees it (the contact wrapper, when there is one, kept outermost)."""
+    import dynamics
+
+    inner = dyn.model if isinstance(dyn, dynamics.ContactAwareDynamics) else dyn
+
+    def wrap(m: Any) -> Any:
+        if inner is dyn:
+            return m
+        outer = dynamics.ContactAwareDynamics.__new__(dynamics.ContactAwareDynamics)
+        outer.model, outer.contacts = m, dyn.contacts
+        return outer
+
+    models = {"numpy": dyn, "torch": _TorchPath(dyn)}
+    if isinstance(inner, dynamics.DynamicsEnsemble):
+        models["members"] = wrap(_MembersOneByOne(inner))
+    return models
+
+
 def run(overrides: Sequence[str] = (), mde_path: str | None = None, seed: int = 0, iteration: int = 0,
         repeat: int = 2) -> dict[str, Any]:
     from active.run import compose_config
@@ -68,9 +107,9 @@ def run(overrides: Sequence[str] = (), mde_path: str | None = None, seed: int = 
     cfg = compose_config(["experiment=quick", *overrides])
     dyn, planner_cfg, batches, info = experiment_batches(cfg, seed, iteration)
     mde = GroupedMDE.load(mde_path) if mde_path else None
-    pools = {"numpy": PlanPool(dyn, planner_cfg, workers=1), "torch": PlanPool(_TorchPath(dyn), planner_cfg, workers=1)}
+    pools = {p: PlanPool(m, planner_cfg, workers=1) for p, m in _path_models(dyn).items()}
     pools["numpy"].run(batches["test"][:1], mde)  # lazy torch / OMPL set-up
-    paths = ("numpy", "torch")
+    paths = tuple(pools)
     times = {p: {b: [] for b in batches} for p in paths}
     prints: dict[str, dict[str, Any]] = {p: {} for p in paths}
     props: dict[str, int] = {}
@@ -102,25 +141,29 @@ def run(overrides: Sequence[str] = (), mde_path: str | None = None, seed: int = 
             "requests": len(reqs), "propagations_numpy_path": props[name],
             "seconds": med, "seconds_all": {p: times[p][name] for p in paths},
             "propagations_per_s_numpy_path": props[name] / med["numpy"],
-            "speedup_numpy_over_torch": med["torch"] / med["numpy"],
-            "same_plans": prints["numpy"][name] == prints["torch"][name],
+            **{f"speedup_numpy_over_{p}": med[p] / med["numpy"] for p in paths[1:]},
+            **{f"same_plans_{p}": prints["numpy"][name] == prints[p][name] for p in paths[1:]},
         }
     return result
 
 
 def format_table(r: dict[str, Any]) -> str:
+    paths = list(r["shares"])
+    others = paths[1:]
     lines = [f"setup: {r['setup']}", f"MDE: {r['mde']}", "",
-             f"{'batch':<8} {'propagations':>12} {'torch path s':>13} {'numpy path s':>13} {'speedup':>8} "
-             f"{'prop/s (numpy)':>15}  same plans"]
+             f"{'batch':<8} {'propagations':>12} " + " ".join(f"{p + ' path s':>15}" for p in paths)
+             + " " + " ".join(f"{'x over ' + p:>14}" for p in others) + f" {'prop/s (numpy)':>15}  same plans"]
     for name, b in r["batches"].items():
-        lines.append(f"{name:<8} {b['propagations_numpy_path']:>12} {b['seconds']['torch']:>13.2f} "
-                     f"{b['seconds']['numpy']:>13.2f} {b['speedup_numpy_over_torch']:>8.2f} "
-                     f"{b['propagations_per_s_numpy_path']:>15.0f}  {'yes' if b['same_plans'] else 'no'}")
+        lines.append(f"{name:<8} {b['propagations_numpy_path']:>12} "
+                     + " ".join(f"{b['seconds'][p]:>15.2f}" for p in paths) + " "
+                     + " ".join(f"{b[f'speedup_numpy_over_{p}']:>14.2f}" for p in others)
+                     + f" {b['propagations_per_s_numpy_path']:>15.0f}  "
+                     + ", ".join(f"{p}: {'yes' if b[f'same_plans_{p}'] else 'no'}" for p in others))
     lines += ["", "share of planning time (profiled pass, both batches)"]
     names = list(next(iter(r["shares"].values())))
-    lines.append(f"{'part':<34} " + " ".join(f"{p + ' path':>12}" for p in r["shares"]))
+    lines.append(f"{'part':<34} " + " ".join(f"{p + ' path':>12}" for p in paths))
     for n in names:
-        lines.append(f"{n:<34} " + " ".join(f"{r['shares'][p][n]:>12.2f}" for p in r["shares"]))
+        lines.append(f"{n:<34} " + " ".join(f"{r['shares'][p][n]:>12.2f}" for p in paths))
     return "\n".join(lines)
 
 

@@ -16,7 +16,7 @@ import torch
 from torch import Tensor, nn
 
 from .config import DynamicsError
-from .model import LearnedDynamics
+from .model import MOVE, POUR, LearnedDynamics, check_np_inputs, np_forward
 
 
 class DynamicsEnsemble(nn.Module):
@@ -36,6 +36,7 @@ class DynamicsEnsemble(nn.Module):
         self.members = nn.ModuleList(members)
         self.cfg = members[0].cfg
         self.info: dict[str, Any] = dict(info or {})
+        self._np: tuple[list, list[dict] | None] | None = None  # (members' weight lists, stacked weights)
         self.eval()
 
     def forward(self, states: Tensor, actions: Tensor) -> Tensor:
@@ -47,11 +48,50 @@ class DynamicsEnsemble(nn.Module):
         return torch.stack([m.predict(states, actions) for m in self.members]).mean(0)
 
     def predict_np(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """Numpy batch path (float64), the members' :meth:`LearnedDynamics.predict_np` averaged."""
-        out = self.members[0].predict_np(states, actions)
-        for m in self.members[1:]:
-            out = out + m.predict_np(states, actions)
-        return out / len(self.members)
+        """Numpy batch path (float64): the members' :meth:`LearnedDynamics.predict_np` averaged.
+
+        The members' weights are stacked once, so a batch costs one feature computation and one
+        matmul per layer for all members (the planner's batches are small, and per-call overhead
+        dominates them)."""
+        stacked = self._stacked()
+        if stacked is None:  # members of different geometry or activation: one at a time
+            out = self.members[0].predict_np(states, actions)
+            for m in self.members[1:]:
+                out = out + m.predict_np(states, actions)
+            return out / len(self.members)
+        s, a, skill, single = check_np_inputs(states, actions)
+        act = self.members[0].cfg.activation
+        out = np.empty_like(s)
+        for k in (MOVE, POUR):
+            m = skill == k
+            if m.all():
+                out = np_forward(stacked[k], k, s, a[:, 1:3], act).mean(0)
+            elif m.any():
+                out[m] = np_forward(stacked[k], k, s[m], a[m, 1:3], act).mean(0)
+        return out[0] if single else out
+
+    def _stacked(self) -> list[dict] | None:
+        """Per skill, the members' numpy weights stacked on a leading member axis (None if they cannot be).
+
+        Rebuilt whenever a member's own numpy copy was rebuilt (after training or loading weights)."""
+        own = [m._weights() for m in self.members]
+        if self._np is not None and all(x is y for x, y in zip(self._np[0], own)):
+            return self._np[1]
+        stacked: list[dict] | None = []
+        acts = {m.cfg.activation for m in self.members}
+        for k in (MOVE, POUR):
+            ws = [w[k] for w in own]
+            same = len(acts) == 1 and all(w["geom"] == ws[0]["geom"] and len(w["W"]) == len(ws[0]["W"])
+                                          and all(x.shape == y.shape for x, y in zip(w["W"], ws[0]["W"])) for w in ws)
+            if not same:
+                stacked = None
+                break
+            stacked.append({**ws[0],
+                            "W": [np.stack([w["W"][i] for w in ws]) for i in range(len(ws[0]["W"]))],
+                            "b": [np.stack([w["b"][i] for w in ws])[:, None, :] for i in range(len(ws[0]["b"]))],
+                            "pose_scale": np.stack([w["pose_scale"] for w in ws])[:, None, :]})
+        self._np = (own, stacked)
+        return stacked
 
     def predict_one(self, state: np.ndarray, action: np.ndarray) -> np.ndarray:
         """One transition, numpy in and out (the members' fast path, averaged)."""

@@ -132,6 +132,57 @@ _ACT_NP = {"silu": lambda h: h / (1.0 + np.exp(-h)), "tanh": np.tanh, "relu": la
 _SWEEP_FRACTIONS = np.linspace(0.0, 1.0, SWEEP_STEPS)
 
 
+def check_np_inputs(states: Any, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """Validated float64 (states [n, 5], actions [n, 3], skill ids [n], was-a-single-row) for the numpy path."""
+    s = np.asarray(states, float)
+    a = np.asarray(actions, float)
+    single = s.ndim == 1
+    if single:
+        s, a = s[None], a[None]
+    LearnedDynamics._check(s.shape, a.shape)
+    if not (np.isfinite(s).all() and np.isfinite(a).all()):
+        raise DynamicsError("dynamics.predict_np: states or actions contain NaN or inf")
+    skill = np.rint(a[:, 0])
+    bad = (np.abs(a[:, 0] - skill) > 1e-4) | ((skill != MOVE) & (skill != POUR))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise DynamicsError(f"dynamics.predict_np: action {i} has skill id {a[i, 0]:g}; allowed 0 (move) or 1 (pour)")
+    return s, a, skill, single
+
+
+def np_forward(w: dict, k: int, s: np.ndarray, p: np.ndarray, activation: str) -> np.ndarray:
+    """Next states of skill ``k`` for rows s [n, 5], p [n, 2] from numpy weights ``w``.
+
+    ``w["W"][i]`` is [in, out] for one network or [M, in, out] for M networks stacked (an ensemble:
+    then ``b`` is [M, 1, out], ``pose_scale`` [M, 1, 3]); the result is [n, 5] or [M, n, 5]. The
+    features are computed once for all M networks, and each layer is one batched matmul.
+    """
+    if k == MOVE:
+        f = np.concatenate([s, p, p - s[:, :2]], 1)
+        nominal = np.concatenate([p, s[:, 2:3]], 1)
+    else:
+        f = np.concatenate([s, p, pour_sweep_np(s, p[:, 0], w["geom"])], 1)
+        nominal = s[:, :3]
+    h = f
+    act = _ACT_NP[activation]
+    last = len(w["W"]) - 1
+    for i, (W, b) in enumerate(zip(w["W"], w["b"])):
+        h = np.matmul(h, W) + b
+        if i < last:
+            h = act(h)
+    logits = h[..., 3:]
+    e = np.exp(logits - logits.max(-1, keepdims=True))
+    wts = e / e.sum(-1, keepdims=True)
+    v = np.clip(s[:, 3:5], 0.0, 1.0)
+    tot = v.sum(1, keepdims=True)
+    v = np.where(tot > 1.0, v / np.maximum(tot, 1e-12), v)
+    out = np.empty(h.shape[:-1] + (STATE_DIM,))
+    out[..., :3] = nominal + h[..., :3] * w["pose_scale"]
+    out[..., 3] = v[:, 0] * wts[..., 0]
+    out[..., 4] = np.minimum(v[:, 1] + v[:, 0] * wts[..., 1], 1.0 - out[..., 3])
+    return out
+
+
 class SkillNet(nn.Module):
     """MLP of one skill plus its normalisation buffers."""
 
@@ -299,27 +350,14 @@ class LearnedDynamics(nn.Module):
 
     def predict_np(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """Numpy batch path (float64 arithmetic on the float32 weights); agrees with :meth:`predict` to ~1e-6."""
-        s = np.asarray(states, float)
-        a = np.asarray(actions, float)
-        single = s.ndim == 1
-        if single:
-            s, a = s[None], a[None]
-        self._check(s.shape, a.shape)
-        if not (np.isfinite(s).all() and np.isfinite(a).all()):
-            raise DynamicsError("dynamics.predict_np: states or actions contain NaN or inf")
-        sk = np.rint(a[:, 0])
-        bad = (np.abs(a[:, 0] - sk) > 1e-4) | ((sk != MOVE) & (sk != POUR))
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise DynamicsError(f"dynamics.predict_np: action {i} has skill id {a[i, 0]:g}; "
-                                "allowed 0 (move) or 1 (pour)")
+        s, a, skill, single = check_np_inputs(states, actions)
         out = np.empty_like(s)
         for k in (MOVE, POUR):
-            m = sk == k
+            m = skill == k
             if m.all():
-                out = self._np_forward(k, s, a[:, 1:3])
+                out = np_forward(self._weights()[k], k, s, a[:, 1:3], self.cfg.activation)
             elif m.any():
-                out[m] = self._np_forward(k, s[m], a[m, 1:3])
+                out[m] = np_forward(self._weights()[k], k, s[m], a[m, 1:3], self.cfg.activation)
         return out[0] if single else out
 
     def predict_one(self, state: np.ndarray, action: np.ndarray) -> np.ndarray:
@@ -366,31 +404,6 @@ class LearnedDynamics(nn.Module):
         pose = np.asarray(nominal) + h[:3] * w["pose_scale"]
         vc_next = vc * e[0]
         return np.array([pose[0], pose[1], pose[2], vc_next, min(vt + vc * e[1], 1.0 - vc_next)])
-
-    def _np_forward(self, k: int, s: np.ndarray, p: np.ndarray) -> np.ndarray:
-        w = self._weights()[k]
-        if k == MOVE:
-            f = np.concatenate([s, p, p - s[:, :2]], 1)
-            nominal = np.concatenate([p, s[:, 2:3]], 1)
-        else:
-            f = np.concatenate([s, p, pour_sweep_np(s, p[:, 0], w["geom"])], 1)
-            nominal = s[:, :3]
-        h = f
-        for i, (W, b) in enumerate(zip(w["W"], w["b"])):
-            h = h @ W + b
-            if i < len(w["W"]) - 1:
-                h = _ACT_NP[self.cfg.activation](h)
-        logits = h[:, 3:]
-        e = np.exp(logits - logits.max(1, keepdims=True))
-        wts = e / e.sum(1, keepdims=True)
-        v = np.clip(s[:, 3:5], 0.0, 1.0)
-        tot = v.sum(1, keepdims=True)
-        v = np.where(tot > 1.0, v / np.maximum(tot, 1e-12), v)
-        out = np.empty((len(s), STATE_DIM))
-        out[:, :3] = nominal + h[:, :3] * w["pose_scale"]
-        out[:, 3] = v[:, 0] * wts[:, 0]
-        out[:, 4] = np.minimum(v[:, 1] + v[:, 0] * wts[:, 1], 1.0 - out[:, 3])
-        return out
 
     # ------------------------------------------------------------------ checkpoints
     def save(self, path: str | Path) -> Path:

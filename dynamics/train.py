@@ -262,21 +262,24 @@ def _finish_data(path: Path, c: DynamicsConfig, dh: str) -> None:
 
 def load_or_train(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_root: str | Path | None = None,
                   *, world_cfg: Any = None, generator: Generator | None = None,
-                  progress: bool | None = None) -> LearnedDynamics | DynamicsEnsemble:
+                  progress: bool | None = None, use_shipped: bool = True) -> LearnedDynamics | DynamicsEnsemble:
     """The trained model for ``cfg`` (a DynamicsConfig or a plain / OmegaConf mapping of its fields).
 
     Loads the cached checkpoint if its config hash matches; otherwise trains (and, if needed,
     generates the dataset first). ``cache_root`` overrides ``cfg.cache_root``; ``world_cfg`` (the
     experiment's world config: WorldConfig or mapping) overrides the ``data.world`` file and is
     part of both hashes. ``model.ensemble`` > 1: a :class:`~dynamics.ensemble.DynamicsEnsemble` whose
-    members are cached as single models (:func:`dynamics.config.ensemble_member`).
+    members are cached as single models (:func:`dynamics.config.ensemble_member`). With the default
+    generator and ``use_shipped``, a checkpoint shipped with the package for the same model hash
+    (:mod:`dynamics.shipped`) is copied into the cache instead of training.
     """
     import yaml
 
     c = _as_config(cfg)
     p = cache_paths(c, cache_root, world_cfg)
     if c.model.ensemble > 1:
-        return _load_or_train_ensemble(c, p, world_cfg=world_cfg, generator=generator, progress=progress)
+        return _load_or_train_ensemble(c, p, world_cfg=world_cfg, generator=generator, progress=progress,
+                                       use_shipped=use_shipped)
     ckpt, mh = p["checkpoint"], p["model_hash"]
     folder = ckpt.parent
     if p["dataset"].is_file() and _unfinished_data(p["dataset"]):  # finish it even when the model is cached
@@ -286,6 +289,10 @@ def load_or_train(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_r
     if not ckpt.is_file() or not (folder / "metrics.json").is_file():
         with _locked(folder):
             _remove_orphans(folder)
+            if not ckpt.is_file() and generator is None and use_shipped:
+                from .shipped import install_shipped_model
+
+                install_shipped_model(ckpt, mh)
             if not ckpt.is_file():
                 ds = load_or_generate_dataset(c, p["root"], generator, progress, world_cfg)
                 model = fit(ds, c.model, c.train, progress=c.progress if progress is None else progress,

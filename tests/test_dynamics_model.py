@@ -192,3 +192,27 @@ def test_cup_geometry_travels_in_the_checkpoint(tmp_path):
     assert torch.allclose(m2.nets[1].cup_geom, torch.tensor([0.08, 0.1, 0.015]))
     s, a = random_inputs(50)
     assert np.allclose(m2.predict_np(s, a), m.predict(torch.tensor(s), torch.tensor(a)).numpy(), atol=1e-5)
+
+
+def test_ensemble_numpy_path_is_the_members_mean_and_follows_weight_changes():
+    """The ensemble's stacked-weight numpy path equals averaging the members' own numpy paths."""
+    from dynamics import DynamicsEnsemble
+
+    members = [random_model(seed=k, scale=0.5) for k in range(3)]
+    ens = DynamicsEnsemble(members)
+    s, a = random_inputs(65, seed=2)
+    mean = sum(m.predict_np(s, a) for m in members) / 3
+    np.testing.assert_allclose(ens.predict_np(s, a), mean, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ens.predict_np(s[3], a[3]), mean[3], rtol=0, atol=1e-12)  # one row in, one out
+    pours = a[:, 0] == 1
+    np.testing.assert_allclose(ens.predict_np(s[pours], a[pours]), mean[pours], rtol=0, atol=1e-12)
+    with pytest.raises(DynamicsError, match=r"skill id 2"):
+        ens.predict_np(s[:2], np.array([[2, 1, 1], [0, 1, 1]]))
+    # a member's weights change: the stacked copy is rebuilt
+    members[1].load_state_dict(random_model(seed=7, scale=0.5).state_dict())
+    mean = sum(m.predict_np(s, a) for m in members) / 3
+    np.testing.assert_allclose(ens.predict_np(s, a), mean, rtol=0, atol=1e-12)
+    # members that cannot be stacked (another width) are averaged one by one
+    odd = DynamicsEnsemble([members[0], LearnedDynamics(ModelConfig(hidden=(16,)))])
+    np.testing.assert_allclose(odd.predict_np(s, a), (members[0].predict_np(s, a) + odd.members[1].predict_np(s, a)) / 2,
+                               rtol=0, atol=1e-12)

@@ -1,6 +1,7 @@
 """The shipped default source-world dataset: matches the default config, regenerates bit for bit,
 is used only for its own data hash."""
 
+import dataclasses
 import logging
 import shutil
 
@@ -67,3 +68,77 @@ def test_shipped_file_is_used_only_for_its_own_hash(tmp_path, monkeypatch, caplo
     with caplog.at_level(logging.INFO, logger="dynamics.shipped"), pytest.raises(AssertionError, match="simulator ran"):
         load_or_generate_dataset(other, tmp_path / "c")
     assert "another configuration" in caplog.text and shipped.shipped_path(dh).name in caplog.text
+
+
+def _default_members():
+    from active.run import compose_config
+    from dynamics.config import ensemble_member
+
+    cfg = compose_config([])
+    c = train_mod._as_config(cfg["dynamics"])
+    singles = [ensemble_member(c, k) for k in range(c.model.ensemble)] if c.model.ensemble > 1 else [c]
+    return cfg, [(m, cache_paths(m, None, cfg["world"])["model_hash"]) for m in singles]
+
+
+def test_default_config_has_its_shipped_models():
+    """Every member of the default model ships, trained on the shipped dataset with the default settings."""
+    from dynamics import LearnedDynamics
+
+    cfg, members = _default_members()
+    dh = cache_paths(cfg["dynamics"], None, cfg["world"])["data_hash"]
+    for m, mh in members:
+        path = shipped.shipped_model_path(mh)
+        assert path.is_file(), (f"no shipped model for member seed {m.train.seed} of the default config (model hash "
+                                f"{mh}): refresh them with `python -m dynamics.shipped`")
+        model = LearnedDynamics.load(path, expected_hash=mh)
+        assert model.info["data_hash"] == dh and model.info["config"] == m.to_dict()
+
+
+def test_shipped_model_is_used_only_for_its_own_hash(tmp_path, monkeypatch, caplog):
+    from dynamics.train import load_or_train
+
+    gen = lambda cfg, **kw: synthetic_generator(cfg)  # noqa: E731
+    c = train_mod._as_config({"progress": False, "data": {"n_batches": 1, "batch_size": 4, "max_actions": 4},
+                              "model": {"hidden": [8], "ensemble": 1}, "train": {"max_epochs": 2, "patience": 2}})
+    made = load_or_train(c, tmp_path / "a", generator=gen)
+    mh = cache_paths(c, tmp_path / "a")["model_hash"]
+    monkeypatch.setattr(shipped, "SHIPPED_DIR", tmp_path / "shipped")
+    (tmp_path / "shipped").mkdir()
+    shutil.copyfile(cache_paths(c, tmp_path / "a")["checkpoint"], shipped.shipped_model_path(mh))
+
+    def no_training(*a, **k):
+        raise AssertionError("trained although a matching shipped model exists")
+
+    monkeypatch.setattr(train_mod, "fit", no_training)
+    monkeypatch.setattr("dynamics.data.generate_source_dataset", no_training)
+    with caplog.at_level(logging.INFO, logger="dynamics.shipped"):
+        got = load_or_train(c, tmp_path / "b")
+    assert "using the shipped dynamics model" in caplog.text
+    assert (tmp_path / "b" / f"model-{mh}" / "metrics.json").is_file()  # the cache entry is complete
+    s, a = np.array([[0.3, 0.2, 0.0, 1.0, 0.0]]), np.array([[1, 1.4, 0.5]])
+    np.testing.assert_array_equal(got.predict_np(s, a), made.predict_np(s, a))
+    # another training setting: another model hash, the shipped model is not used
+    other = c.replace(train=dataclasses.replace(c.train, seed=5))
+    with pytest.raises(AssertionError, match="trained although"):
+        load_or_train(other, tmp_path / "c")
+    with pytest.raises(AssertionError, match="trained although"):  # nor when asked not to
+        load_or_train(c, tmp_path / "d", use_shipped=False)
+
+
+@pytest.mark.slow
+def test_a_shipped_member_retrains_to_the_same_model(tmp_path):
+    """Member 0 trained again on the shipped data predicts what the shipped checkpoint predicts.
+
+    Bit for bit on the CPU that shipped it; another CPU's float rounding may differ, hence a tolerance
+    on predictions (pour outcomes within 0.005) rather than equal weights."""
+    from dynamics import LearnedDynamics
+    from dynamics.train import load_or_train
+
+    cfg, members = _default_members()
+    m, mh = members[0]
+    shipped_model = LearnedDynamics.load(shipped.shipped_model_path(mh), expected_hash=mh)
+    again = load_or_train(m, tmp_path, world_cfg=cfg["world"], use_shipped=False)
+    ds = Transitions.load(shipped.find_shipped(shipped_model.info["data_hash"]))
+    idx = np.random.default_rng(0).choice(len(ds), 2000, replace=False)
+    diff = np.abs(again.predict_np(ds.s[idx], ds.a[idx]) - shipped_model.predict_np(ds.s[idx], ds.a[idx]))
+    assert diff.max() < 0.005, diff.max(0)
