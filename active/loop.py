@@ -173,6 +173,7 @@ NOT_RUN_SETTINGS = {
     "beta": "experiment.beta_train / experiment.beta_test (passed with every planning call)",
     "seed": "the run's seed (every planning call derives its own)",
     "goal_tol": "experiment.plan_goal_tol (null: world.problems.tolerance)",
+    "move_lattice": "world.skills.lattice (absent: 0, continuous move targets)",
 }
 
 
@@ -205,6 +206,7 @@ def build_planner_config(world: WorldConfig, planner: Mapping[str, Any], exp: Ex
             raise ValueError(f"planner.{k} = {d[k]!r} differs from {src} = {want!r}: the planner's value is "
                              f"{src}'s (configs/planner/default.yaml interpolates it); set {src} instead")
     d["goal_tol"] = _plan_goal_tol(world, exp)
+    d["move_lattice"] = float(world.skills.get("lattice", 0.0))
     return PlannerConfig.from_dict(d)
 
 

@@ -8,6 +8,13 @@ problems (same seeds), executes the plans, and for every executed step compares 
 one-step prediction from the *executed* state (what an MDE label measures) with what happened,
 grouped by skill and by the pour's order in the plan (the first pour of a plan starts from a full
 cup, later ones from a partly empty, tilted-back cup). Prints a table, writes JSON.
+
+It also asks how far any model could get with these plans: a plan is accepted as soon as its
+predicted final state lies within the goal band, so its predicted fraction sits anywhere in the band.
+If the outcome of a plan scattered as N(prediction, s^2) around a *perfect* prediction (s: the pour
+scatter the ladder's reproducibility rung measures), it would reach the goal with probability
+P(|offset + e| < tol); ``--scatter`` lists the s to evaluate (the default world's 0.035, the lattice
+world's 0.017, the issue's target 0.010), averaged over the found plans' own offsets.
 """
 
 from __future__ import annotations
@@ -25,6 +32,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--world", choices=("source", "target"), default="source")
     ap.add_argument("--problems", type=int, default=30)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--scatter", type=float, nargs="+", default=[0.035, 0.017, 0.010],
+                    help="outcome std s of a perfect model's plans (the ladder's reproducibility max_std)")
     ap.add_argument("overrides", nargs="*")
     args = ap.parse_args(argv)
 
@@ -99,8 +108,18 @@ def main(argv: list[str] | None = None) -> dict:
     ok = np.array([p["goal_reached"] for p in plan_rows])
     for m in sorted(set(npours.tolist())):
         lines.append(f"plans with {m} pour(s): {int((npours == m).sum())}, reached the goal {int(ok[npours == m].sum())}")
+    from scipy.stats import norm
+
+    tol = float(world.problems["tolerance"])
+    offsets = np.array([p["planned_v_tgt"] - p["goal"] for p in plan_rows])
+    bound = {str(s): float(np.mean(norm.cdf((tol - offsets) / s) - norm.cdf((-tol - offsets) / s)))
+             for s in args.scatter} if len(offsets) else {}
+    if len(offsets):
+        lines.append(f"planned final v_tgt - goal: mean |offset| {np.abs(offsets).mean():.3f} (goal band +-{tol}); "
+                     "a perfect model with outcome scatter s would reach the goal with these plans' offsets in: "
+                     + ", ".join(f"s = {s}: {b:.2f}" for s, b in bound.items()))
     result = {"world": args.world, "overrides": list(args.overrides), "summary": summary, "plans": plan_rows,
-              "steps": steps}
+              "steps": steps, "perfect_model_success_at_scatter": bound, "goal_tolerance": tol}
     report("\n".join(lines), result, args.out)
     return result
 

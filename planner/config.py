@@ -52,6 +52,9 @@ class PlannerConfig:
     move_y: Range = (0.03, 0.35)
     pour_theta: Range = (0.0, 2.4)
     pour_hold: Range = (0.0, 1.5)
+    #: move targets on a lattice of this spacing (m), as the world executes them (``world.skills.lattice``);
+    #: 0 = continuous targets
+    move_lattice: float = 0.0
     #: probability that the action sampler picks ``move`` (otherwise ``pour``)
     p_move: float = 0.5
     max_actions: int = 6
@@ -114,6 +117,9 @@ class PlannerConfig:
             if rng_[0] < lo[i] or rng_[1] > hi[i]:  # an action's target is a state: it must lie in the state box
                 raise ValueError(f"{key}={list(rng_)} reaches outside the state bounds of {names[i]} "
                                  f"[{lo[i]}, {hi[i]}] (state_low[{i}], state_high[{i}]): widen them or narrow {key}")
+        if not (math.isfinite(float(self.move_lattice)) and float(self.move_lattice) >= 0):
+            raise ValueError(f"move_lattice={self.move_lattice}: allowed 0 (continuous move targets) or a spacing > 0 m")
+        set_("move_lattice", float(self.move_lattice))
         w = tuple(float(v) for v in self.distance_weights)
         if len(w) != 4 or any(not math.isfinite(v) or v < 0 for v in w) or sum(w) == 0:
             raise ValueError(f"distance_weights must be 4 finite non-negative numbers, not all 0; got {w}")

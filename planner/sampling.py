@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from task import on_lattice
+
 from .config import PlannerConfig
 from .interfaces import ACTION_DIM, SKILL_MOVE, SKILL_POUR
 
@@ -37,6 +39,13 @@ class ActionSampler:
         out = np.empty((n, ACTION_DIM))
         out[:, 0] = skill
         out[:, 1:] = self._lo[skill] + u[:, 1:] * self._span[skill]
+        lat = self.config.move_lattice
+        if lat:  # where the world puts the cup: the nearest lattice point inside the move range
+            move = skill == SKILL_MOVE
+            lo, hi = self._lo[0], self._lo[0] + self._span[0]
+            lo_lat = np.maximum(np.ceil(lo / lat - 1e-9) * lat, lo)  # max / min: float rounding of k * lat
+            hi_lat = np.minimum(np.floor(hi / lat + 1e-9) * lat, hi)
+            out[move, 1:] = np.clip(on_lattice(out[move, 1:], lat), lo_lat, hi_lat)
         return out
 
     def contains(self, actions: np.ndarray) -> np.ndarray:

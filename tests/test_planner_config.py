@@ -26,7 +26,7 @@ def test_yaml_mirrors_dataclass_defaults():
     assert derived == {"move_x", "move_y", "pour_theta", "pour_hold", "max_actions", "spill_limit", "d_max",
                        "n_candidates", "time_budget", "propagation_budget"}
     default = PlannerConfig().to_dict()
-    assert set(default) - set(d) == {"beta", "seed", "goal_tol"}
+    assert set(default) - set(d) == {"beta", "seed", "goal_tol", "move_lattice"}
     # the run's state box reaches the world's move range (y up to 0.36 m); the library's default moves stop at 0.35
     assert d.pop("state_high") == [0.55, 0.36, 2.4, 1.0, 1.0] and default["state_high"] == [0.55, 0.35, 2.4, 1.0, 1.0]
     assert {k: v for k, v in d.items() if k not in derived} == {k: v for k, v in default.items()
@@ -63,6 +63,7 @@ def test_overrides_and_omegaconf():
     (dict(problems={"goal": (0.2, 1.2)}), r"unknown planner config key\(s\) \['problems'\]"),
     (dict(move_y=(0.03, 0.4)), r"move_y=\[0.03, 0.4\] reaches outside the state bounds of y \[0.03, 0.35\]"),
     (dict(pour_theta=(0.0, 2.5)), r"pour_theta=\[0.0, 2.5\] reaches outside the state bounds of theta"),
+    (dict(move_lattice=-0.01), r"move_lattice=-0.01: allowed 0 \(continuous move targets\) or a spacing > 0 m"),
 ])
 def test_bad_config_values(kw, match):
     with pytest.raises(ValueError, match=match):
@@ -87,6 +88,19 @@ def test_action_sampler_ranges_and_reproducibility():
     only_pour = ActionSampler(c.replace(p_move=0.0)).sample(50, np.random.default_rng(1))
     assert (only_pour[:, 0] == 1).all()
     assert s.sample(0, np.random.default_rng(0)).shape == (0, 3)
+
+
+def test_action_sampler_puts_moves_on_the_worlds_lattice():
+    """With move_lattice the sampler proposes the move the world executes (the nearest lattice point);
+    pours are untouched, and the random stream is the same as without a lattice."""
+    c = PlannerConfig(move_x=(0.053, 0.55), move_y=(0.03, 0.35))
+    free = ActionSampler(c).sample(2000, np.random.default_rng(3))
+    on = ActionSampler(c.replace(move_lattice=0.01)).sample(2000, np.random.default_rng(3))
+    mv = on[:, 0] == 0
+    np.testing.assert_array_equal(on[~mv], free[~mv])
+    np.testing.assert_allclose(on[mv, 1:], np.round(on[mv, 1:] / 0.01) * 0.01, atol=1e-12)
+    assert np.abs(on[mv, 1:] - free[mv, 1:]).max() <= 0.005 + 0.003 + 1e-12  # 0.053 rounds up to 0.06
+    assert on[mv, 1].min() >= 0.06 - 1e-12 and ActionSampler(c.replace(move_lattice=0.01)).contains(on).all()
 
 
 def test_features_and_goal_helpers_numpy_and_torch():
