@@ -347,7 +347,10 @@ def _run(cfg: Any) -> LearnedDynamics | DynamicsEnsemble:
     t0 = time.perf_counter()
     singles = [ensemble_member(c, k) for k in range(c.model.ensemble)] if c.model.ensemble > 1 else [c]
     had_data = p["dataset"].is_file()
-    had_model = [cache_paths(m)["checkpoint"].is_file() for m in singles]
+    from .shipped import shipped_model_path
+
+    had_model = ["cached" if cache_paths(m)["checkpoint"].is_file() else
+                 "shipped" if shipped_model_path(cache_paths(m)["model_hash"]).is_file() else "trained" for m in singles]
     model = load_or_train(c)
     info = model.info
     print(f"dataset    {p['dataset']} ({'cached' if had_data else 'generated'}): {info['dataset']}")
@@ -355,7 +358,7 @@ def _run(cfg: Any) -> LearnedDynamics | DynamicsEnsemble:
         print(f"           generation wall time {info['dataset']['generation_wall_seconds']:.1f} s")
     for m, had in zip(getattr(model, "members", [model]), had_model):
         tr = m.info["training"]
-        print(f"checkpoint {cache_paths(m.info['config'])['checkpoint']} ({'cached' if had else 'trained'}): "
+        print(f"checkpoint {cache_paths(m.info['config'])['checkpoint']} ({had}): "
               f"best epoch {tr['best_epoch']} of {tr['epochs_run']}, val loss {tr['best_val_loss']:.4f}, "
               f"training wall time {tr['wall_seconds']:.1f} s")
         print(format_errors(tr["val_errors"], "validation split (source world), mean absolute errors:"))
