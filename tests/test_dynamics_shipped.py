@@ -45,13 +45,18 @@ def test_first_shard_regenerates_bit_for_bit():
         np.testing.assert_array_equal(getattr(again, k), getattr(ds, k)[rows], err_msg=k)
 
 
+def _ship(monkeypatch, tmp_path, src, target):
+    """Make ``tmp_path/shipped`` the package's shipped folder and copy ``src`` to ``target()`` in it."""
+    monkeypatch.setattr(shipped, "SHIPPED_DIR", tmp_path / "shipped")
+    (tmp_path / "shipped").mkdir()
+    shutil.copyfile(src, target())
+
+
 def test_shipped_file_is_used_only_for_its_own_hash(tmp_path, monkeypatch, caplog):
     c = train_mod._as_config({"progress": False, "data": {"n_batches": 1, "batch_size": 4, "max_actions": 4}})
     made = load_or_generate_dataset(c, tmp_path / "a", generator=lambda cfg, **kw: synthetic_generator(cfg))
     dh = cache_paths(c, tmp_path / "a")["data_hash"]
-    monkeypatch.setattr(shipped, "SHIPPED_DIR", tmp_path / "shipped")
-    (tmp_path / "shipped").mkdir()
-    shutil.copyfile(cache_paths(c, tmp_path / "a")["dataset"], shipped.shipped_path(dh))
+    _ship(monkeypatch, tmp_path, cache_paths(c, tmp_path / "a")["dataset"], lambda: shipped.shipped_path(dh))
 
     def no_simulation(*a, **k):
         raise AssertionError("the simulator ran although a matching shipped dataset exists")
@@ -102,9 +107,7 @@ def test_shipped_model_is_used_only_for_its_own_hash(tmp_path, monkeypatch, capl
                               "model": {"hidden": [8], "ensemble": 1}, "train": {"max_epochs": 2, "patience": 2}})
     made = load_or_train(c, tmp_path / "a", generator=gen)
     mh = cache_paths(c, tmp_path / "a")["model_hash"]
-    monkeypatch.setattr(shipped, "SHIPPED_DIR", tmp_path / "shipped")
-    (tmp_path / "shipped").mkdir()
-    shutil.copyfile(cache_paths(c, tmp_path / "a")["checkpoint"], shipped.shipped_model_path(mh))
+    _ship(monkeypatch, tmp_path, cache_paths(c, tmp_path / "a")["checkpoint"], lambda: shipped.shipped_model_path(mh))
 
     def no_training(*a, **k):
         raise AssertionError("trained although a matching shipped model exists")
