@@ -89,7 +89,6 @@ class Obstacles:
     bodies: list[Body]
     interior_lo: np.ndarray
     interior_hi: np.ndarray
-    _boxes: np.ndarray | bool | None = field(default=None, init=False, repr=False, compare=False)
 
     def sdf(self, p: np.ndarray, cutoff: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(distance, index of the closest obstacle: body index, or -1 for the tank walls).
@@ -100,8 +99,6 @@ class Obstacles:
         elsewhere it may be an upper bound of the true distance (from the shapes that were evaluated).
         """
         walls = np.minimum((p - self.interior_lo).min(1), (self.interior_hi - p).min(1))
-        if cutoff is not None and self._box_table() is not None:
-            return self._boxes_sdf(p, walls, cutoff)
         best, idx = walls, np.full(len(p), -1)
         for k, body in enumerate(self.bodies):
             pose = np.asarray(body.pose, float)
@@ -120,41 +117,6 @@ class Obstacles:
                 best[sel] = np.where(closer, d, best[sel])
                 idx[sel] = np.where(closer, k, idx[sel])
         return best, idx
-
-    def _box_table(self) -> np.ndarray | None:
-        """Per shape (body index, body x, y, cos, sin, shape centre x, y, cos, sin, half sizes, bounding
-        circle centre x, y and radius), when every shape is a box; else None (cached)."""
-        if self._boxes is None:
-            rows = []
-            for k, body in enumerate(self.bodies):
-                pose = np.asarray(body.pose, float)
-                c, s = math.cos(pose[2]), math.sin(pose[2])
-                for sh in body.shapes:
-                    cx, cy = sh.center
-                    centre = pose[:2] + (c * cx - s * cy, s * cx + c * cy)
-                    rows.append([k, pose[0], pose[1], c, s, cx, cy, math.cos(sh.angle), math.sin(sh.angle),
-                                 *sh.size, *centre, _bounding_radius(sh)] if sh.kind == "box" else None)
-            self._boxes = np.array(rows, float).T if rows and all(r is not None for r in rows) else False
-        return None if self._boxes is False else self._boxes
-
-    def _boxes_sdf(self, p: np.ndarray, walls: np.ndarray, cutoff: float) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`sdf` with a cutoff when every shape is a box: all shapes in one broadcast (points x
-        shapes), element by element the same arithmetic as :func:`_sdf_shape`, so the same bits; ties
-        go to the earlier shape, as in the loop. Why: a contact query on a few hundred points is
-        dominated by the number of numpy calls, which the loop multiplies by the number of shapes."""
-        k, px, py, c, s, cx, cy, ca, sa, hx, hy, ox, oy, rad = self._boxes
-        x, y = p[:, 0:1], p[:, 1:2]
-        near = np.hypot(x - ox, y - oy) - rad < cutoff
-        dx, dy = x - px, y - py
-        q0, q1 = c * dx + s * dy - cx, -s * dx + c * dy - cy
-        a0 = np.abs(ca * q0 + sa * q1) - hx
-        a1 = np.abs(-sa * q0 + ca * q1) - hy
-        m0, m1 = np.maximum(a0, 0), np.maximum(a1, 0)
-        d = np.sqrt(m0 * m0 + m1 * m1) + np.minimum(np.maximum(a0, a1), 0)
-        d = np.concatenate([walls[:, None], np.where(near, d, np.inf)], 1)
-        j = d.argmin(1)
-        rows = np.arange(len(p))
-        return d[rows, j], np.where(j == 0, -1, k.astype(int)[np.maximum(j - 1, 0)])
 
 
 def _bounding_radius(shape: Shape) -> float:

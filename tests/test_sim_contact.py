@@ -128,21 +128,3 @@ def test_planner_never_plans_a_move_predicted_stuck(world):
         moves = t.actions[:, 0] == 0
         assert not (stuck & moves).any()
     assert found >= 2
-
-
-def test_all_box_obstacles_take_one_broadcast_with_the_loops_bits(world):
-    """Obstacles.sdf with a cutoff evaluates all-box obstacles in one broadcast: the same distances and
-    indices, bit for bit, as the shape-by-shape loop; a world with other shapes (the plant) keeps the loop."""
-    from sim.skills import Obstacles
-
-    source = ContactPredictor(world, world="source").obstacles
-    assert source._box_table() is not None
-    loop = Obstacles(source.bodies, source.interior_lo, source.interior_hi)
-    loop._boxes = False  # the shape-by-shape path
-    p = np.random.default_rng(0).uniform([0.0, 0.0], [0.6, 0.45], (5000, 2))
-    p[:50] = [0.22, 0.05]  # the target cup's own origin: distances tie between its walls
-    for cutoff in (0.0045, 0.05, 10.0):
-        for got, want in zip(source.sdf(p, cutoff=cutoff), loop.sdf(p, cutoff=cutoff)):
-            np.testing.assert_array_equal(got, want)
-    target = ContactPredictor(world, world="target").obstacles
-    assert target._box_table() is None  # the plant's capsules and ellipses
