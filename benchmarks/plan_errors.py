@@ -27,6 +27,16 @@ import numpy as np
 from benchmarks._cli import report
 
 
+def perfect_model_success(offsets: np.ndarray, tol: float, scatter: float) -> float:
+    """Mean over plans of P(|offset + e| <= tol), e ~ N(0, scatter^2): how often plans whose predicted
+    final fraction lies ``offsets`` from the goal would reach a band of +-``tol`` if the prediction were
+    exact and only the outcome scattered."""
+    from scipy.stats import norm
+
+    o = np.asarray(offsets, float)
+    return float(np.mean(norm.cdf((tol - o) / scatter) - norm.cdf((-tol - o) / scatter)))
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--world", choices=("source", "target"), default="source")
@@ -108,12 +118,9 @@ def main(argv: list[str] | None = None) -> dict:
     ok = np.array([p["goal_reached"] for p in plan_rows])
     for m in sorted(set(npours.tolist())):
         lines.append(f"plans with {m} pour(s): {int((npours == m).sum())}, reached the goal {int(ok[npours == m].sum())}")
-    from scipy.stats import norm
-
     tol = float(world.problems["tolerance"])
     offsets = np.array([p["planned_v_tgt"] - p["goal"] for p in plan_rows])
-    bound = {str(s): float(np.mean(norm.cdf((tol - offsets) / s) - norm.cdf((-tol - offsets) / s)))
-             for s in args.scatter} if len(offsets) else {}
+    bound = {str(s): perfect_model_success(offsets, tol, s) for s in args.scatter} if len(offsets) else {}
     if len(offsets):
         lines.append(f"planned final v_tgt - goal: mean |offset| {np.abs(offsets).mean():.3f} (goal band +-{tol}); "
                      "a perfect model with outcome scatter s would reach the goal with these plans' offsets in: "
