@@ -13,6 +13,8 @@
 set -euo pipefail
 out=$1; shift
 repo=$(git -C "$(dirname "$0")/.." rev-parse --show-toplevel)
+restore() { pip install -q -e "$repo" --no-deps --no-build-isolation && rm -rf "$repo/build"; }
+trap restore EXIT  # whatever happens, the editable install points back at this repository
 for rev in "$@"; do
   d=/tmp/main-job-$rev
   if [ -z "${PARSE_ONLY:-}" ]; then
@@ -23,7 +25,6 @@ for rev in "$@"; do
     echo "== $rev end $(date +%T): $(tail -1 "$d.log")"
   fi
 done
-pip install -q -e "$repo" --no-deps --no-build-isolation 2>/dev/null && rm -rf "$repo/build"
 python - "$out" "$@" <<'PY'
 import csv, json, re, subprocess, sys
 out, revs = sys.argv[1], sys.argv[2:]
@@ -31,7 +32,12 @@ res = {}
 for rev in revs:
     d = f"/tmp/main-job-{rev}"
     log = open(f"{d}.log").read().replace("\r", "\n")
-    wall = float(re.findall(r"^wall ([0-9.]+) s", log, re.M)[-1])
+    walls = re.findall(r"^wall ([0-9.]+) s", log, re.M)
+    if not walls or "Command exited with non-zero status" in log:
+        res[rev] = {"failed": True, "log": f"{d}.log"}
+        print(f"{rev:>10}  FAILED (see {d}.log)")
+        continue
+    wall = float(walls[-1])
     commit = subprocess.run(["git", "-C", d, "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
     methods = {}
     for m in ("active_balanced", "random_plan"):
@@ -46,7 +52,7 @@ for rev in revs:
     print(f"{rev:>10}  wall {wall:7.1f} s  models trained {trained}, shipped {shipped}  "
           + "  ".join(f"{m}: plan {v['plan_seconds']} s, sim {v['sim_seconds']} s, test {v['test_seconds']} s"
                       for m, v in methods.items()))
-if len(revs) > 1:
+if len(revs) > 1 and all("wall_s" in res[r] for r in (revs[0], revs[-1])):
     print(f"ratio {revs[0]} / {revs[-1]}: {res[revs[0]]['wall_s'] / res[revs[-1]]['wall_s']:.2f}x")
 json.dump(res, open(out, "w"), indent=1)
 PY

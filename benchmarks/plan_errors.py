@@ -23,11 +23,12 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from benchmarks._cli import report
 
 
-def perfect_model_success(offsets: np.ndarray, tol: float, scatter: float) -> float:
+def perfect_model_success(offsets: ArrayLike, tol: float, scatter: float) -> float:
     """Mean over plans of P(|offset + e| <= tol), e ~ N(0, scatter^2): how often plans whose predicted
     final fraction lies ``offsets`` from the goal would reach a band of +-``tol`` if the prediction were
     exact and only the outcome scattered."""
@@ -46,6 +47,8 @@ def main(argv: list[str] | None = None) -> dict:
                     help="outcome std s of a perfect model's plans (the ladder's reproducibility max_std)")
     ap.add_argument("overrides", nargs="*")
     args = ap.parse_args(argv)
+    if any(not s > 0 for s in args.scatter):
+        ap.error(f"--scatter {args.scatter}: allowed standard deviations > 0")
 
     import torch
 

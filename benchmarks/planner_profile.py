@@ -19,6 +19,7 @@ chunk, in-process) and reports:
 from __future__ import annotations
 
 import argparse
+import copy
 import cProfile
 import pstats
 import statistics
@@ -89,8 +90,8 @@ def _path_models(dyn: Any) -> dict[str, Any]:
     def wrap(m: Any) -> Any:
         if inner is dyn:
             return m
-        outer = dynamics.ContactAwareDynamics.__new__(dynamics.ContactAwareDynamics)
-        outer.model, outer.contacts = m, dyn.contacts
+        outer = copy.copy(dyn)
+        outer.model = m
         return outer
 
     models = {"numpy": dyn, "torch": _TorchPath(dyn)}

@@ -75,7 +75,7 @@ class DynamicsEnsemble(nn.Module):
 
         Rebuilt whenever a member's own numpy copy was rebuilt (after training or loading weights)."""
         own = [m._weights() for m in self.members]
-        if self._np is not None and all(x is y for x, y in zip(self._np[0], own)):
+        if self._np is not None and len(self._np[0]) == len(own) and all(x is y for x, y in zip(self._np[0], own)):
             return self._np[1]
         stacked: list[dict] | None = []
         acts = {m.cfg.activation for m in self.members}
@@ -92,6 +92,20 @@ class DynamicsEnsemble(nn.Module):
                             "pose_scale": np.stack([w["pose_scale"] for w in ws])[:, None, :]})
         self._np = (own, stacked)
         return stacked
+
+    def invalidate_cache(self) -> None:
+        """Forget every numpy copy of the weights (call after changing members' parameters in place)."""
+        for m in self.members:
+            m.invalidate_cache()
+        self._np = None
+
+    def load_state_dict(self, *args: Any, **kwargs: Any) -> Any:  # noqa: D102 - keeps derived copies in sync
+        out = super().load_state_dict(*args, **kwargs)
+        for m in self.members:
+            for net in m.nets:
+                net.refresh_geometry()
+        self.invalidate_cache()
+        return out
 
     def predict_one(self, state: np.ndarray, action: np.ndarray) -> np.ndarray:
         """One transition, numpy in and out (the members' fast path, averaged)."""

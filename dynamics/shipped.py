@@ -57,11 +57,19 @@ def install_shipped_model(checkpoint: Path, model_hash: str) -> bool:
     """Copy the shipped checkpoint for ``model_hash`` to ``checkpoint`` (atomically); False if there is none."""
     import safeio
 
+    from .config import DynamicsError
+    from .model import LearnedDynamics
+
     src = shipped_model_path(model_hash)
     if not src.is_file():
         if SHIPPED_DIR.is_dir() and any(SHIPPED_DIR.glob("model-*.pt")):
             log.info("no shipped dynamics model for model hash %s (the shipped ones were trained with another "
                      "configuration): training it", model_hash)
+        return False
+    try:  # a damaged or mislabelled file is never copied into the cache
+        LearnedDynamics.load(src, expected_hash=model_hash)
+    except DynamicsError as e:
+        log.warning("the shipped dynamics model %s cannot be used (%s): training it instead", src.name, e)
         return False
     safeio.atomic_write(checkpoint, src.read_bytes())
     log.info("using the shipped dynamics model %s", src.name)

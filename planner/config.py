@@ -117,9 +117,14 @@ class PlannerConfig:
             if rng_[0] < lo[i] or rng_[1] > hi[i]:  # an action's target is a state: it must lie in the state box
                 raise ValueError(f"{key}={list(rng_)} reaches outside the state bounds of {names[i]} "
                                  f"[{lo[i]}, {hi[i]}] (state_low[{i}], state_high[{i}]): widen them or narrow {key}")
-        if not (math.isfinite(float(self.move_lattice)) and float(self.move_lattice) >= 0):
-            raise ValueError(f"move_lattice={self.move_lattice}: allowed 0 (continuous move targets) or a spacing > 0 m")
-        set_("move_lattice", float(self.move_lattice))
+        lat = self.move_lattice
+        if isinstance(lat, bool) or not isinstance(lat, (int, float)) or not math.isfinite(lat) or lat < 0:
+            raise ValueError(f"move_lattice={lat!r}: allowed 0 (continuous move targets) or a spacing > 0 m")
+        set_("move_lattice", float(lat))
+        for key, (a, b) in (("move_x", self.move_x), ("move_y", self.move_y)):
+            if lat and math.floor(b / lat + 1e-9) < math.ceil(a / lat - 1e-9):
+                raise ValueError(f"{key}={[a, b]} holds no multiple of move_lattice={lat:g} m: no move target "
+                                 "could be executed; widen the range or change the lattice")
         w = tuple(float(v) for v in self.distance_weights)
         if len(w) != 4 or any(not math.isfinite(v) or v < 0 for v in w) or sum(w) == 0:
             raise ValueError(f"distance_weights must be 4 finite non-negative numbers, not all 0; got {w}")

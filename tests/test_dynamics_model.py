@@ -212,6 +212,14 @@ def test_ensemble_numpy_path_is_the_members_mean_and_follows_weight_changes():
     members[1].load_state_dict(random_model(seed=7, scale=0.5).state_dict())
     mean = sum(m.predict_np(s, a) for m in members) / 3
     np.testing.assert_allclose(ens.predict_np(s, a), mean, rtol=0, atol=1e-12)
+    # new weights loaded through the ensemble itself reach its numpy path too
+    ens.load_state_dict(DynamicsEnsemble([random_model(seed=k + 10, scale=0.5) for k in range(3)]).state_dict())
+    mean = sum(m.predict_np(s, a) for m in members) / 3
+    np.testing.assert_allclose(ens.predict_np(s, a), mean, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ens.predict_np(s, a), ens.predict(torch.tensor(s), torch.tensor(a)).numpy(), atol=1e-5)
+    moves = a[:, 0] == 0
+    np.testing.assert_allclose(ens.predict_np(s[moves], a[moves]), mean[moves], rtol=0, atol=1e-12)
+    assert ens.predict_np(s[:0], a[:0]).shape == (0, 5)
     # members that cannot be stacked (another width) are averaged one by one
     odd = DynamicsEnsemble([members[0], LearnedDynamics(ModelConfig(hidden=(16,)))])
     np.testing.assert_allclose(odd.predict_np(s, a), (members[0].predict_np(s, a) + odd.members[1].predict_np(s, a)) / 2,

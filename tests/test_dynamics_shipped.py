@@ -126,6 +126,12 @@ def test_shipped_model_is_used_only_for_its_own_hash(tmp_path, monkeypatch, capl
         load_or_train(other, tmp_path / "c")
     with pytest.raises(AssertionError, match="trained although"):  # nor when asked not to
         load_or_train(c, tmp_path / "d", use_shipped=False)
+    # a damaged shipped file is not copied into the cache: the model is trained instead
+    shipped.shipped_model_path(mh).write_bytes(b"not a checkpoint")
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="dynamics.shipped"), pytest.raises(AssertionError, match="trained"):
+        load_or_train(c, tmp_path / "e")
+    assert "cannot be used" in caplog.text and not cache_paths(c, tmp_path / "e")["checkpoint"].exists()
 
 
 @pytest.mark.slow

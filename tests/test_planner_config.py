@@ -64,6 +64,8 @@ def test_overrides_and_omegaconf():
     (dict(move_y=(0.03, 0.4)), r"move_y=\[0.03, 0.4\] reaches outside the state bounds of y \[0.03, 0.35\]"),
     (dict(pour_theta=(0.0, 2.5)), r"pour_theta=\[0.0, 2.5\] reaches outside the state bounds of theta"),
     (dict(move_lattice=-0.01), r"move_lattice=-0.01: allowed 0 \(continuous move targets\) or a spacing > 0 m"),
+    (dict(move_lattice="x"), r"move_lattice='x': allowed 0"),
+    (dict(move_lattice=0.01, move_x=(0.053, 0.057)), r"move_x=\[0.053, 0.057\] holds no multiple of move_lattice=0.01"),
 ])
 def test_bad_config_values(kw, match):
     with pytest.raises(ValueError, match=match):
@@ -99,7 +101,9 @@ def test_action_sampler_puts_moves_on_the_worlds_lattice():
     mv = on[:, 0] == 0
     np.testing.assert_array_equal(on[~mv], free[~mv])
     np.testing.assert_allclose(on[mv, 1:], np.round(on[mv, 1:] / 0.01) * 0.01, atol=1e-12)
-    assert np.abs(on[mv, 1:] - free[mv, 1:]).max() <= 0.005 + 0.003 + 1e-12  # 0.053 rounds up to 0.06
+    # the nearest lattice point, moved inside the range: x in [0.06, 0.55], y in [0.03, 0.35]
+    want = np.clip(np.round(free[mv, 1:] / 0.01) * 0.01, [0.06, 0.03], [0.55, 0.35])
+    np.testing.assert_allclose(on[mv, 1:], want, rtol=0, atol=1e-12)
     assert on[mv, 1].min() >= 0.06 - 1e-12 and ActionSampler(c.replace(move_lattice=0.01)).contains(on).all()
 
 
