@@ -6,12 +6,13 @@ mean of three such models (``model.ensemble``, :class:`DynamicsEnsemble`): a pla
 model finds its idiosyncratic errors.
 
     from dynamics import load_or_train
-    model = load_or_train(cfg.dynamics, world_cfg=cfg.world)  # cached by config hash; trains if missing
+    model = load_or_train(cfg.dynamics, world_cfg=cfg.world)  # cached by config hash; shipped or trained if missing
     s_next = model.predict(states, actions)                # torch [n, 5], [n, 3] -> [n, 5] float32
     s1 = model.predict_one(s, a)                           # numpy fast path for one transition
 
 Commands: ``python -m dynamics.train`` (Hydra, ``configs/dynamics``), ``python -m dynamics.evaluate
---out DIR`` and ``python -m benchmarks.dynamics``. Depends on ``sim`` (data generation) only.
+--out DIR``, ``python -m dynamics.shipped`` (the default's data and members, shipped with the package:
+:mod:`dynamics.shipped`) and ``python -m benchmarks.dynamics``. Depends on ``sim`` (data generation) only.
 """
 
 from .config import (DataConfig, DynamicsConfig, DynamicsError, EvalConfig, ModelConfig, TrainConfig, data_hash,
