@@ -349,8 +349,9 @@ def _run(cfg: Any) -> LearnedDynamics | DynamicsEnsemble:
     had_data = p["dataset"].is_file()
     from .shipped import shipped_model_path
 
-    had_model = ["cached" if cache_paths(m)["checkpoint"].is_file() else
-                 "shipped" if shipped_model_path(cache_paths(m)["model_hash"]).is_file() else "trained" for m in singles]
+    had_model = ["cached" if cache_paths(m)["checkpoint"].is_file()
+                 else "shipped" if shipped_model_path(cache_paths(m)["model_hash"]).is_file()
+                 else "trained" for m in singles]
     model = load_or_train(c)
     info = model.info
     print(f"dataset    {p['dataset']} ({'cached' if had_data else 'generated'}): {info['dataset']}")
