@@ -389,6 +389,12 @@ def ensemble_member(cfg: DynamicsConfig, k: int) -> DynamicsConfig:
                                train=dataclasses.replace(cfg.train, seed=cfg.train.seed * n + k))
 
 
+def single_models(cfg: DynamicsConfig) -> list[DynamicsConfig]:
+    """The single models ``cfg`` is made of, each cached as a model of its own: its ensemble's members,
+    or ``cfg`` itself when it is one model."""
+    return [ensemble_member(cfg, k) for k in range(cfg.model.ensemble)] if cfg.model.ensemble > 1 else [cfg]
+
+
 # ---------------------------------------------------------------------------------- helpers
 def _known(cls: type, data: Mapping[str, Any], what: str) -> dict[str, Any]:
     names = {f.name for f in fields(cls)}

@@ -100,14 +100,14 @@ def main(argv: Sequence[str] | None = None) -> None:
 
     import safeio
 
-    from .config import ensemble_member
+    from .config import single_models
     from .train import CONFIG_DIR, _as_config, cache_paths, load_or_generate_dataset, load_or_train
 
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base=None):
         cfg: Any = OmegaConf.to_container(compose(config_name="default", overrides=list(args.overrides)), resolve=True)
     c = _as_config(cfg)
     p = cache_paths(c, None, None)  # the world of data.world (default: configs/world/default.yaml)
-    singles = [ensemble_member(c, k) for k in range(c.model.ensemble)] if c.model.ensemble > 1 else [c]
+    singles = single_models(c)
     targets = [shipped_path(p["data_hash"])] + [shipped_model_path(cache_paths(m)["model_hash"]) for m in singles]
     if args.check:
         for f in targets:

@@ -33,7 +33,7 @@ import safeio
 from task import STATE_NAMES
 
 from .config import (TRAIN_COMMAND, DataConfig, DynamicsConfig, DynamicsError, ModelConfig, TrainConfig,
-                     data_hash, ensemble_member, model_hash)
+                     data_hash, model_hash, single_models)
 from .ensemble import DynamicsEnsemble
 from .data import MOVE, POUR, Transitions, load_world
 from .model import SKILLS, LearnedDynamics
@@ -314,7 +314,7 @@ def load_or_train(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_r
 
 def _load_or_train_ensemble(c: DynamicsConfig, p: dict[str, Any], **kwargs: Any) -> DynamicsEnsemble:
     """The ensemble of ``c``: each member loaded (or trained) and cached as a single model of its own."""
-    members = [load_or_train(ensemble_member(c, k), p["root"], **kwargs) for k in range(c.model.ensemble)]
+    members = [load_or_train(m, p["root"], **kwargs) for m in single_models(c)]
     return DynamicsEnsemble(members, info={
         "model_hash": p["model_hash"], "data_hash": p["data_hash"], "config": c.to_dict(),
         "members": [m.info["model_hash"] for m in members], "dataset": members[0].info.get("dataset"),
@@ -345,7 +345,7 @@ def _run(cfg: Any) -> LearnedDynamics | DynamicsEnsemble:
     c = DynamicsConfig.from_dict(cfg)
     p = cache_paths(c)
     t0 = time.perf_counter()
-    singles = [ensemble_member(c, k) for k in range(c.model.ensemble)] if c.model.ensemble > 1 else [c]
+    singles = single_models(c)
     had_data = p["dataset"].is_file()
     from .shipped import shipped_model_path
 

@@ -77,11 +77,11 @@ def test_shipped_file_is_used_only_for_its_own_hash(tmp_path, monkeypatch, caplo
 
 def _default_members():
     from active.run import compose_config
-    from dynamics.config import ensemble_member
+    from dynamics.config import single_models
 
     cfg = compose_config([])
     c = train_mod._as_config(cfg["dynamics"])
-    singles = [ensemble_member(c, k) for k in range(c.model.ensemble)] if c.model.ensemble > 1 else [c]
+    singles = single_models(c)
     return cfg, [(m, cache_paths(m, None, cfg["world"])["model_hash"]) for m in singles]
 
 
