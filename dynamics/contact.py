@@ -50,11 +50,26 @@ class ContactAwareDynamics:
         s, a = np.asarray(states, float), np.asarray(actions, float)
         if s.ndim == 1:
             return self.predict_one(s, a)
+        return self.predict_np_contacts(s, a)[0]
+
+    def predict_np_contacts(self, states: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`predict_np` for [n, 5] states and [n, 3] actions, and which rows are stuck ([n] bool).
+
+        A stuck action ends the trajectory in the simulator, so a planner must not extend a plan from
+        it. Its pose alone cannot say so: a move stopped within millimetres of its target looks
+        arrived (BENCHMARKS.md, session 12)."""
+        s, a = np.asarray(states, float), np.asarray(actions, float)
+        stuck, stop, _ = self.contacts.first_contact(s[:, :3], a)
         inner = getattr(self.model, "predict_np", None)
-        if inner is None:  # a model with the torch path only
+        if inner is None:
             out = self.model.predict(torch.as_tensor(s, dtype=torch.float32), torch.as_tensor(a, dtype=torch.float32))
-            return self._apply(s, a, out.detach().double().cpu().numpy())
-        return self._apply(s, a, inner(s, a))
+            out = out.detach().double().cpu().numpy()
+        else:
+            out = np.asarray(inner(s, a), float)
+        if stuck.any():
+            out = out.copy()
+            out[stuck, :3] = stop[stuck]
+        return out, stuck
 
     def predict_one(self, state: np.ndarray, action: np.ndarray) -> np.ndarray:
         s, a = np.asarray(state, float).reshape(1, -1), np.asarray(action, float).reshape(1, -1)

@@ -319,7 +319,7 @@ class _Search:
         s = self.S[pid]
         acts = self.sampler.sample(k, self.rng)
         states = np.tile(s, (k, 1))
-        nxt = self.ev.predict_next(states, acts)
+        nxt, stuck = self.ev.predict_next_stuck(states, acts)
         self.rows += k
         self.idle = 0
         ok = np.all(np.isfinite(nxt), axis=1)
@@ -330,6 +330,8 @@ class _Search:
         at_goal = self._goal_dist(nxt) <= 0.0
         if self.c.prune_dead_states:
             ok &= ~self._dead(nxt) & ~self._stuck_move(nxt, acts)
+            if stuck is not None:  # the simulator ends a trajectory at its first contact
+                ok &= ~stuck
         if self.depth[pid] + 1 >= self.c.max_actions:
             ok &= at_goal  # a child at the depth limit is useless unless it is a goal
         idx = np.flatnonzero(ok)
@@ -418,6 +420,9 @@ class _Evaluator:
         self.dyn_device = _torch_device(dynamics)
         np_path = getattr(dynamics, "predict_np", None)
         self.predict_np = np_path if callable(np_path) and self.dyn_device.type == "cpu" else None
+        #: a model that knows which transitions get stuck (dynamics.ContactAwareDynamics) says so itself
+        contacts = getattr(dynamics, "predict_np_contacts", None)
+        self.predict_contacts = contacts if callable(contacts) else None
         self.mde_dtype = _torch_dtype(mde, torch.get_default_dtype()) if mde is not None else None
         self.mde_device = _torch_device(mde) if mde is not None else None
 
@@ -434,6 +439,17 @@ class _Evaluator:
         if nxt.shape != (k, STATE_DIM):
             raise ValueError(f"dynamics model returned shape {tuple(nxt.shape)}, expected ({k}, {STATE_DIM})")
         return nxt
+
+    def predict_next_stuck(self, states: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`predict_next` and, for a model that predicts contacts, which rows get stuck ([k] bool;
+        None for a model that does not: the caller then judges from the predicted poses)."""
+        if self.predict_contacts is None or self.predict_np is None:
+            return self.predict_next(states, actions), None
+        nxt, stuck = self.predict_contacts(np.asarray(states, float), np.asarray(actions, float))
+        nxt = np.asarray(nxt, dtype=float)
+        if nxt.shape != (len(actions), STATE_DIM):
+            raise ValueError(f"dynamics model returned shape {tuple(nxt.shape)}, expected ({len(actions)}, {STATE_DIM})")
+        return nxt, np.asarray(stuck, bool)
 
     def _predict_torch(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
         with torch.no_grad():

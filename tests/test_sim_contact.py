@@ -128,3 +128,30 @@ def test_planner_never_plans_a_move_predicted_stuck(world):
         moves = t.actions[:, 0] == 0
         assert not (stuck & moves).any()
     assert found >= 2
+
+
+def test_planner_prunes_a_move_stopped_just_short_of_its_target(world):
+    """The cup's outer wall reaches the tank wall at the very end of this move: it stops about 5 mm
+    short, inside the pose rule's tolerance (``stuck_move``), so only the contact flag tells the
+    planner that the simulator would end the trajectory there (BENCHMARKS.md, session 12)."""
+    from planner.rrt import _Evaluator, _Search
+
+    dyn = ContactAwareDynamics(_Commanded(), world)
+    s = np.array([[0.143, 0.354, 0.0, 1.0, 0.0]])
+    a = np.array([move(0.515, 0.081)])
+    nxt, stuck = dyn.predict_np_contacts(s, a)
+    cfg = PlannerConfig()
+    assert stuck[0] and np.hypot(*(nxt[0, :2] - a[0, 1:3])) < cfg.stuck_move
+    np.testing.assert_array_equal(nxt, dyn.predict_np(s, a))
+
+    class _Fixed:  # proposes only this move
+        def sample(self, k, rng):
+            return np.repeat(a, k, 0)
+
+    def refill(dynamics):
+        search = _Search(_Evaluator(dynamics, None, _Fixed()), cfg, s[0], 0.5, 0.05, 2.0, 0.07,
+                         np.random.default_rng(0), 100, float("inf"))
+        return search._refill(0, 4, 0).size
+
+    assert refill(dyn) == 0
+    assert refill(_Commanded()) == 4  # the same move without contacts is a plain transition
