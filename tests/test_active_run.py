@@ -67,16 +67,17 @@ def test_end_to_end_tiny_run_writes_everything(straight_run):
     assert (out / "config.json").exists()
 
 
-@pytest.mark.skipif(os.name != "posix", reason="the venv's interpreter path is POSIX-style here")
-def test_a_built_wheel_runs_the_tiny_experiment_outside_the_repository(cache, straight_run, tmp_path):
-    """The configs ship as package data and are found through the ``configs`` package: a wheel,
-    installed into a fresh virtual environment, runs the CLI from a folder that is not the repository
-    and gives the editable install's results (the dependencies come from this interpreter's site)."""
+@pytest.fixture(scope="module")
+def wheel_python(tmp_path_factory) -> str:
+    """The interpreter of a fresh virtual environment with the project installed from a built wheel
+    (the dependencies come from this interpreter's site)."""
     import tomllib
 
-    straight, _ = straight_run
-    src, wheels, venv, work = (tmp_path / d for d in ("src", "wheels", "venv", "elsewhere"))
-    src.mkdir(), work.mkdir()
+    if os.name != "posix":
+        pytest.skip("the venv's interpreter path is POSIX-style here")
+    root = tmp_path_factory.mktemp("wheel")
+    src, wheels, venv = (root / d for d in ("src", "wheels", "venv"))
+    src.mkdir()
     # the project's files only: a build/ folder left in the checkout would put stale files into the wheel
     packages = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"]["include"]
     for name in ("pyproject.toml", "README.md"):
@@ -89,13 +90,43 @@ def test_a_built_wheel_runs_the_tiny_experiment_outside_the_repository(cache, st
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", "--system-site-packages", str(venv)], **quiet)
     py = str(venv / "bin" / "python")
     subprocess.run([py, "-m", "pip", "install", "-q", "--no-deps", *map(str, wheels.glob("*.whl"))], **quiet)
-    where = subprocess.run([py, "-c", "import active, configs; print(active.__file__); print(configs.CONFIG_DIR)"],
-                           cwd=work, **quiet).stdout.split()
-    assert len(where) == 2 and all(w.startswith(str(venv)) for w in where), where  # the wheel, not the checkout
-    out = tmp_path / "run"
+    return py
+
+
+def _wheel_env() -> dict:
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     env.pop("PYTHONPATH", None)
-    subprocess.run([py, "-m", "active.run", *tiny_overrides(cache), f"hydra.run.dir={out}"], cwd=work, env=env, **quiet)
+    return env
+
+
+def test_a_built_wheel_finds_its_configs_and_shipped_files_outside_the_repository(cache, wheel_python, tmp_path):
+    """The configs and the default model's shipped data and members are package data: a wheel, run from a
+    folder that is not the repository, composes the experiment's config (Hydra's --cfg job) and finds the
+    shipped files inside itself. The same CLI runs the experiment in the kill-and-resume test below."""
+    work = tmp_path / "elsewhere"
+    work.mkdir()
+    quiet = dict(check=True, capture_output=True, text=True, env=_wheel_env(), cwd=work)
+    venv = str(Path(wheel_python).parents[1])
+    where = subprocess.run([wheel_python, "-c", "import active, configs, dynamics.shipped as s; print(active.__file__); "
+                            "print(configs.CONFIG_DIR); print(s.SHIPPED_DIR)"], **quiet).stdout.split()
+    assert len(where) == 3 and all(w.startswith(venv) for w in where), where  # the wheel, not the checkout
+    shipped = sorted(p.name for p in Path(where[2]).glob("*.pt"))
+    assert shipped == sorted(p.name for p in (REPO / "dynamics" / "shipped").glob("*.pt")), shipped
+    job = subprocess.run([wheel_python, "-m", "active.run", *tiny_overrides(cache), "--cfg", "job", "--resolve"],
+                         **quiet).stdout
+    want = compose_config(tiny_overrides(cache))
+    assert f"iterations: {want['experiment']['iterations']}" in job and str(cache) in job
+
+
+@pytest.mark.slow  # one more tiny run, ~60 s on 2 cores; the test above checks what the wheel ships
+def test_a_built_wheel_runs_the_tiny_experiment_outside_the_repository(cache, straight_run, wheel_python, tmp_path):
+    """The wheel's CLI, run from a folder that is not the repository, gives the editable install's results."""
+    straight, _ = straight_run
+    work = tmp_path / "elsewhere"
+    work.mkdir()
+    out = tmp_path / "run"
+    subprocess.run([wheel_python, "-m", "active.run", *tiny_overrides(cache), f"hydra.run.dir={out}"], cwd=work,
+                   env=_wheel_env(), check=True, capture_output=True, text=True)
     for method in ("active_balanced", "random_actions"):
         assert _comparable(out / method / "results.csv") == _comparable(straight / method / "results.csv")
     assert (out / "report" / "learning_curves.png").stat().st_size > 0
