@@ -31,19 +31,20 @@ class ContactAwareDynamics:
         self.model = model
         self.contacts = ContactPredictor(world_cfg, world="source", **contact_kwargs)
 
-    def _apply(self, s: np.ndarray, a: np.ndarray, out: np.ndarray) -> np.ndarray:
+    def _apply(self, s: np.ndarray, a: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``out`` with the poses of stuck rows replaced by their stop poses, and which rows are stuck."""
         stuck, stop, _ = self.contacts.first_contact(s[:, :3], a)
         if stuck.any():
             out = out.copy()
             out[stuck, :3] = stop[stuck]
-        return out
+        return out, stuck
 
     def predict(self, states: Tensor, actions: Tensor) -> Tensor:
         """As the wrapped model's ``predict`` (torch [n, 5], [n, 3] -> [n, 5]), contacts applied."""
         out = self.model.predict(states, actions)
         s = torch.as_tensor(states).detach().double().cpu().numpy()
         a = torch.as_tensor(actions).detach().double().cpu().numpy()
-        fixed = self._apply(s, a, out.detach().double().cpu().numpy())
+        fixed, _ = self._apply(s, a, out.detach().double().cpu().numpy())
         return torch.as_tensor(fixed, dtype=out.dtype, device=out.device)
 
     def predict_np(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
@@ -59,23 +60,17 @@ class ContactAwareDynamics:
         it. Its pose alone cannot say so: a move stopped within millimetres of its target looks
         arrived (BENCHMARKS.md, session 12)."""
         s, a = np.asarray(states, float), np.asarray(actions, float)
-        stuck, stop, _ = self.contacts.first_contact(s[:, :3], a)
         inner = getattr(self.model, "predict_np", None)
-        if inner is None:
+        if inner is None:  # a model with the torch path only
             out = self.model.predict(torch.as_tensor(s, dtype=torch.float32), torch.as_tensor(a, dtype=torch.float32))
-            out = out.detach().double().cpu().numpy()
-        else:
-            out = np.asarray(inner(s, a), float)
-        if stuck.any():
-            out = out.copy()
-            out[stuck, :3] = stop[stuck]
-        return out, stuck
+            return self._apply(s, a, out.detach().double().cpu().numpy())
+        return self._apply(s, a, np.asarray(inner(s, a), float))
 
     def predict_one(self, state: np.ndarray, action: np.ndarray) -> np.ndarray:
         s, a = np.asarray(state, float).reshape(1, -1), np.asarray(action, float).reshape(1, -1)
         one = getattr(self.model, "predict_one", None)
         out = one(s[0], a[0])[None] if one is not None else self.model.predict_np(s, a)
-        return self._apply(s, a, np.asarray(out, float))[0]
+        return self._apply(s, a, np.asarray(out, float))[0][0]
 
     def __getattr__(self, name: str) -> Any:  # info, save, cfg, ... of the wrapped model
         # only called for names not found normally; during unpickling ``model`` is not set yet, and

@@ -427,29 +427,28 @@ class _Evaluator:
         self.mde_device = _torch_device(mde) if mde is not None else None
 
     def predict_next(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """Next states [k, 5] for k (state, action) pairs, one batched model call.
+        """Next states [k, 5] for k (state, action) pairs, one batched model call (:meth:`predict_next_stuck`)."""
+        return self.predict_next_stuck(states, actions)[0]
+
+    def predict_next_stuck(self, states: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Next states [k, 5] and, for a model that predicts contacts, which rows get stuck ([k] bool; None
+        for a model that does not: the caller then judges from the predicted poses).
 
         A CPU model's numpy path (``predict_np``, float64 arithmetic) when it has one: the planner's
         batches are small (tens of rows), where torch's per-call overhead is most of the cost."""
         k = len(actions)
-        if self.predict_np is not None:
-            nxt = np.asarray(self.predict_np(np.asarray(states, float), np.asarray(actions, float)), dtype=float)
-        else:
+        stuck = None
+        if self.predict_np is None:
             nxt = self._predict_torch(states, actions)
+        elif self.predict_contacts is not None:
+            nxt, stuck = self.predict_contacts(np.asarray(states, float), np.asarray(actions, float))
+            stuck = np.asarray(stuck, bool)
+        else:
+            nxt = self.predict_np(np.asarray(states, float), np.asarray(actions, float))
+        nxt = np.asarray(nxt, dtype=float)
         if nxt.shape != (k, STATE_DIM):
             raise ValueError(f"dynamics model returned shape {tuple(nxt.shape)}, expected ({k}, {STATE_DIM})")
-        return nxt
-
-    def predict_next_stuck(self, states: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """:meth:`predict_next` and, for a model that predicts contacts, which rows get stuck ([k] bool;
-        None for a model that does not: the caller then judges from the predicted poses)."""
-        if self.predict_contacts is None or self.predict_np is None:
-            return self.predict_next(states, actions), None
-        nxt, stuck = self.predict_contacts(np.asarray(states, float), np.asarray(actions, float))
-        nxt = np.asarray(nxt, dtype=float)
-        if nxt.shape != (len(actions), STATE_DIM):
-            raise ValueError(f"dynamics model returned shape {tuple(nxt.shape)}, expected ({len(actions)}, {STATE_DIM})")
-        return nxt, np.asarray(stuck, bool)
+        return nxt, stuck
 
     def _predict_torch(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
         with torch.no_grad():
