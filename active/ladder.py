@@ -384,8 +384,9 @@ def main(argv: Sequence[str] | None = None) -> None:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, required=True, help="output directory (ladder.json)")
     ap.add_argument("--rungs", nargs="+", default=list(RUNGS), help=f"which rungs (default all: {' '.join(RUNGS)})")
-    ap.add_argument("--thetas", type=float, nargs="+", default=[1.35, 1.45],
-                    help="pour angles of the reproducibility rung (the steep part of the outcome curve)")
+    ap.add_argument("--thetas", type=float, nargs="+", default=[1.15, 1.25],
+                    help="pour angles of the reproducibility rung, on the steep part of the default world's "
+                         "outcome curve (0.30 and 0.49 of the water; 1.35 / 1.45 before session 13's fuller cup)")
     ap.add_argument("--hold", type=float, default=0.5, help="hold time of the reproducibility pours, s")
     ap.add_argument("--slots", type=int, default=32, help="environment slots / approaches per reproducibility pour")
     ap.add_argument("--problems", type=int, default=30, help="problems per planning rung")

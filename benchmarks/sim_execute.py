@@ -91,7 +91,7 @@ def resolution_check(cfg: WorldConfig, world: str = "source", arch: str | None =
             "reference_difference": diffs[REFERENCE_POUR[0]], "target_max_difference": 0.05}
 
 
-def outcome_spread(cfg: WorldConfig, dxs=(0.01, 0.005), n: int = 32, thetas=(1.35, 1.45), seed: int = 7,
+def outcome_spread(cfg: WorldConfig, dxs=(0.01, 0.005), n: int = 32, thetas=(1.15, 1.25), seed: int = 7,
                    arch: str | None = None) -> list[dict]:
     """How much does the same pour's outcome vary? ``move(0.32, 0.20), pour(theta, 0.5)`` run (a) from
     one start in n environment slots (only the initial particle jitter differs) and (b) from n sampled

@@ -315,11 +315,13 @@ class DifferentiablePour:
         tp = np.asarray(self.cfg.target_pose())
         out = np.zeros((2, self.B))
         for b in range(self.B):
+            free = np.ones(n[b], bool)  # a particle counts in the first region that holds it
             for r, pose in enumerate((end_pose[b], tp)):
                 c, s = math.cos(pose[2]), math.sin(pose[2])
                 d = x[b, : n[b]] - pose[:2]
                 q = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], 1)
-                inside = np.all((q >= lo[r]) & (q <= hi[r]), axis=1)
+                inside = free & np.all((q >= lo[r]) & (q <= hi[r]), axis=1)
+                free &= ~inside
                 out[r, b] = inside.sum() / max(n[b], 1)
         return out[0], out[1]
 

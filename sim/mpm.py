@@ -310,7 +310,9 @@ class MPMSolver:
         """Particles inside axis-aligned boxes given in body frames: (B, m) counts for m regions.
 
         Region r is ``lo[r] <= q <= hi[r]`` with q the particle position in body ``bodies[r]``'s frame
-        (a body index of -1 means the world frame)."""
+        (a body index of -1 means the world frame). A particle counts once, in the first region that
+        holds it: regions can overlap (the controlled cup stuck tilted with its mouth over the target
+        cup's), and fractions of the water must not add up to more than all of it."""
         m = len(bodies)
         out = np.zeros((self.B, m), np.int32)
         self._count_regions(np.asarray(bodies, np.int32), np.asarray(lo, np.float32).reshape(m, 2),
@@ -625,13 +627,16 @@ class MPMSolver:
                        out: ti.types.ndarray()):
         for b, p in ti.ndrange(self.B, self.N):
             if p < self.n_part[b]:
+                counted = 0
                 for r in range(bodies.shape[0]):
-                    k = bodies[r]
-                    q = self.x[b, p]
-                    if k >= 0:
-                        q = self._to_body(b, k, q)
-                    if lo[r, 0] <= q[0] and q[0] <= hi[r, 0] and lo[r, 1] <= q[1] and q[1] <= hi[r, 1]:
-                        out[b, r] += 1
+                    if counted == 0:
+                        k = bodies[r]
+                        q = self.x[b, p]
+                        if k >= 0:
+                            q = self._to_body(b, k, q)
+                        if lo[r, 0] <= q[0] and q[0] <= hi[r, 0] and lo[r, 1] <= q[1] and q[1] <= hi[r, 1]:
+                            out[b, r] += 1
+                            counted = 1
 
 
 def _bounding_radius(shape: Shape) -> float:

@@ -17,7 +17,11 @@ from tests.doubles.standins import AnalyticPouringModel
 
 @pytest.fixture(scope="module")
 def world():
-    return WorldConfig.load()
+    """The default world with continuous cup positions (its default lattice, session 13, is tested apart)."""
+    import dataclasses
+
+    w = WorldConfig.load()
+    return dataclasses.replace(w, skills={**w.skills, "lattice": 0.0})
 
 
 @pytest.fixture(scope="module")

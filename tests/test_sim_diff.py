@@ -94,12 +94,12 @@ def _check_gradients(dp, required):
 
 
 def test_gradients_match_central_differences(dp):
-    """The default world's water (ghost mass in the walls, sim.boundary_density): AD = FD in x, theta
-    and hold. y has no case that is smooth at the FD scale here (measured at 5 poses around P): the
-    ghost mass switches on as a grid node crosses into a cup wall, a jump in the density estimate,
-    and a move in y sweeps the cup floor across node rows. y's gradient takes the same code path as
-    x's (the cup pose); the slow test below checks all four on the water without ghost mass."""
-    _check_gradients(dp, {"x", "theta", "hold"})
+    """The default world's water (ghost mass in the walls, sim.boundary_density): AD = FD in y, theta
+    and hold. One pose coordinate has no case that is smooth at the FD scale here: the ghost mass
+    switches on as a grid node crosses into a cup wall, a jump in the density estimate. With 5 cm of
+    water that was y (x was checked); with session 13's 7.5 cm it is x (y is checked). Both take the
+    same code path (the cup pose); the slow test below checks all four on the water without ghost mass."""
+    _check_gradients(dp, {"y", "theta", "hold"})
 
 
 @pytest.mark.slow
@@ -145,7 +145,7 @@ def test_non_differentiable_parameter_names_the_allowed_ones(dp, name):
 @pytest.mark.parametrize("col,value,match", [
     (2, 2.5, r"theta\) = 2.5 is outside skills.pour.theta = \[0, 2.2\]"),
     (3, -0.1, r"hold\) = -0.1 is outside skills.pour.hold = \[0, 1\]"),
-    (0, 0.6, r"x\) = 0.6 is outside skills.move.x = \[0.1, 0.52\]"),
+    (0, 0.6, r"x\) = 0.6 is outside skills.move.x = \[0.1, 0.51\]"),
     (1, float("nan"), r"y\) = nan is outside skills.move.y"),
 ])
 def test_out_of_range_parameter_names_field_and_range(dp, col, value, match):

@@ -272,6 +272,23 @@ def test_region_counts_in_body_frame():
     solver.close()
 
 
+def test_a_particle_counts_once_where_regions_overlap():
+    """Overlapping regions (a cup stuck tilted with its mouth over the target cup's) must not count a
+    particle twice: it goes to the first region that holds it, so the fractions never exceed 1."""
+    solver = MPMSolver(SimConfig(n_envs=1, max_particles=512))
+    solver.reset([_cup_env(x=0.3)])
+    hw = CUP.inner_width / 2 + 1e-3
+    lower = ([-hw, -1e-3], [hw, CUP.inner_height / 4])
+    whole = ([-hw, -1e-3], [hw, CUP.inner_height])
+    n = solver.particle_counts()[0]
+    both = solver.count_in_regions([0, 0], [lower[0], whole[0]], [lower[1], whole[1]])[0]
+    alone = solver.count_in_regions([0], [lower[0]], [lower[1]])[0, 0]
+    assert 0 < alone < n and both.tolist() == [alone, n - alone]
+    swapped = solver.count_in_regions([0, 0], [whole[0], lower[0]], [whole[1], lower[1]])[0]
+    assert swapped.tolist() == [n, 0]
+    solver.close()
+
+
 # ------------------------------------------------------------------------------ instability
 def test_unstable_environment_is_flagged_and_reported(caplog):
     solver = MPMSolver(SimConfig(n_envs=2, max_particles=512))

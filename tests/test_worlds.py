@@ -149,7 +149,8 @@ def test_a_lattice_puts_starts_and_move_targets_on_it(cfg):
 
     from sim.skills import Obstacles, cup_boundary, plan_schedule
 
-    lat = dataclasses.replace(cfg, skills={**cfg.skills, "lattice": 0.01})
+    assert cfg.skills["lattice"] == 0.01  # the default world's (session 13)
+    lat, cfg = cfg, dataclasses.replace(cfg, skills={**cfg.skills, "lattice": 0.0})
     free = sample_problems(cfg, 6, seed=3)
     snapped = sample_problems(lat, 6, seed=3)
     for p, q in zip(free, snapped):
