@@ -334,6 +334,16 @@ NEUTRAL_SOLVER_SETTINGS = {"viscosity": 0.0, "stretch_relax": 0.0, "boundary_den
                            "box_normals": "central"}  # the rule before the setting existed
 
 
+def data_format(world: Mapping[str, Any]) -> Any:
+    """The format entry of a dataset's identity for that world (a :func:`world_dict`).
+
+    Since session 14 a dataset records the executed action (a move target rounded to the world's
+    ``skills.lattice``), not the commanded one. The two differ only on a lattice, so only a lattice
+    world's identity carries the mark: data of a continuous world keeps its hash and stays valid."""
+    lattice = world.get("skills", {}).get("lattice", 0.0)
+    return DATA_FORMAT_VERSION if not lattice else [DATA_FORMAT_VERSION, "executed actions"]
+
+
 def _digest(obj: Any) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()).hexdigest()[:16]
 
@@ -353,7 +363,7 @@ def data_hash(cfg: DynamicsConfig, world_cfg: Any = None) -> str:
     for k, off in NEUTRAL_SOLVER_SETTINGS.items():  # as solver_dict: a setting at its "before" value is no change
         if world.get("sim", {}).get(k) == off:
             world["sim"].pop(k)
-    return _digest({"format": DATA_FORMAT_VERSION, "data": d, "world": world,
+    return _digest({"format": data_format(world), "data": d, "world": world,
                     "solver": solver_dict(cfg.data, world_cfg)})
 
 

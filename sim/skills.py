@@ -36,8 +36,13 @@ def pour(theta: float, hold: float) -> np.ndarray:
 
 
 def validate_actions(cfg: WorldConfig, seqs: Sequence[Sequence[Sequence[float]]]) -> list[np.ndarray]:
-    """Check (or clip, with ``skills.clip_parameters``) every action before anything is simulated."""
+    """Check (or clip, with ``skills.clip_parameters``) every action before anything is simulated.
+
+    Returns the actions as the world executes them: move targets on the world's ``skills.lattice``
+    (as :func:`plan_schedule` moves the cup), so recorded transitions pair each outcome with the
+    action that produced it, not with the one that was asked for."""
     sk = cfg.skills
+    lattice = sk.get("lattice", 0.0)
     out = []
     for i, seq in enumerate(seqs):
         a = np.asarray(seq, float)
@@ -58,6 +63,8 @@ def validate_actions(cfg: WorldConfig, seqs: Sequence[Sequence[Sequence[float]]]
                     else:
                         raise ValueError(f"action sequence {i} step {t}: {name} = {val:g} outside its range "
                                          f"[{lo:g}, {hi:g}] (skills.{name}; set skills.clip_parameters to clip)")
+        moves = a[:, 0] == MOVE
+        a[moves, 1:3] = on_lattice(a[moves, 1:3], lattice)
         out.append(a)
     return out
 

@@ -88,7 +88,8 @@ def test_tiny_simulator_dataset_trains_and_resumes(tmp_path):
         assert np.allclose(ds.s_next[rows[:-1]], ds.s[rows[1:]])
     moved = (ds.skill() == 0) & ~ds.stuck
     lattice = float(WorldConfig.load().skills.get("lattice", 0.0))  # the world moves the cup to its lattice point
-    assert np.allclose(ds.s_next[moved, :2], on_lattice(ds.a[moved, 1:3], lattice), atol=2e-3)  # kinematic cup reaches it
+    assert np.array_equal(ds.a[moved, 1:3], on_lattice(ds.a[moved, 1:3], lattice).astype(ds.a.dtype))  # recorded as executed
+    assert np.allclose(ds.s_next[moved, :2], ds.a[moved, 1:3], atol=2e-3)  # kinematic cup reaches it
     again = generate_transitions(data, "source", progress=False, shard_dir=tmp_path, executor=_NoSimulator())
     assert np.array_equal(again.s_next, ds.s_next)
     model = fit(ds, ModelConfig(hidden=(16,)), TrainConfig(max_epochs=3, patience=3))

@@ -184,6 +184,22 @@ def test_bad_input_fails_before_simulating(cfg, kwargs, match):
     assert ex._solvers == {}  # nothing was built or simulated
 
 
+def test_actions_come_back_as_executed_on_the_lattice(cfg):
+    """A move target is returned rounded to ``skills.lattice``, where the cup really goes, so a recorded
+    transition pairs the outcome with the action that produced it; pours and continuous worlds are untouched."""
+    from sim.skills import validate_actions
+
+    lat = WorldConfig.from_mapping({**cfg.__dict__, "controlled_cup": cfg.controlled_cup.__dict__,
+                                    "target_cup": cfg.target_cup.__dict__, "skills": {**cfg.skills, "lattice": 0.01}})
+    cont = WorldConfig.from_mapping({**cfg.__dict__, "controlled_cup": cfg.controlled_cup.__dict__,
+                                     "target_cup": cfg.target_cup.__dict__, "skills": {**cfg.skills, "lattice": 0.0}})
+    seq = [move(0.3337, 0.2149), pour(1.234, 0.567)]
+    (a,) = validate_actions(lat, [seq])
+    np.testing.assert_allclose(a, [[0, 0.33, 0.21], [1, 1.234, 0.567]], rtol=0, atol=1e-12)
+    (b,) = validate_actions(cont, [seq])
+    np.testing.assert_array_equal(b, np.asarray(seq, float))
+
+
 def test_parameters_clip_when_configured(cfg):
     from sim.skills import validate_actions
 
