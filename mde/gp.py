@@ -226,6 +226,9 @@ class MDEGP(SingleTaskGP):
         super().__init__(*args, **kwargs)
         self.noise_model = None
         self.noise_floor = float(noise_floor)
+        #: raw inputs (n x d) -> log noise variance (label units); set by the MDE to its cached noise mean
+        #: (:class:`mde.kernel_cache.KernelCache`), so that ``posterior`` and ``predict`` read one noise
+        self.log_noise_fn: Any = None
 
     def set_noise_model(self, noise_model: SingleTaskGP | None) -> None:
         """Attach a fitted noise GP (frozen: it must not move when this GP is refitted)."""
@@ -244,8 +247,11 @@ class MDEGP(SingleTaskGP):
         """
         if self.noise_model is None:
             raise RuntimeError("noise_variance needs a heteroscedastic model")
-        with exact_gp_settings():
-            log_noise = self.noise_model.posterior(X).mean.squeeze(-1)
+        if self.log_noise_fn is not None:
+            log_noise = self.log_noise_fn(X.reshape(-1, X.shape[-1])).reshape(X.shape[:-1]).to(X.dtype)
+        else:
+            with exact_gp_settings():
+                log_noise = self.noise_model.posterior(X).mean.squeeze(-1)
         # never above the largest noise seen in the data: far from the data the log-noise GP can
         # extrapolate above every training value, which made every novel transition "uncertain"
         log_noise = log_noise.clamp_max(self.log_noise_max)

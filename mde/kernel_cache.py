@@ -112,3 +112,20 @@ class KernelCache:
             q2 = (Q * Q).sum(dim=0)
         var = q2.neg_().add_(self.outputscale).clamp_min_(0.0)
         return mean, var
+
+
+class AffineMean:
+    """``scale * cache.mean(X) + shift``: a cached GP's mean mapped back through its outcome transform
+    (a picklable callable, for :attr:`mde.gp.MDEGP.log_noise_fn`).
+
+    Why the noise GP's mean goes through the cache and not through ``noise_model.posterior``: with
+    lengthscales of ~1e-8 on 0/1 features (seen on simulator data) GPyTorch's distance loses the
+    other features' O(1) terms to float64 cancellation; at one query of
+    ``tests/data/mde_noise_extrapolation.pt`` its mean was -6.55 where an explicit-difference float64
+    computation gives -6.86 and the cache -6.86 (``tests/test_mde_regressions.py``)."""
+
+    def __init__(self, cache: KernelCache, shift: float, scale: float) -> None:
+        self.cache, self.shift, self.scale = cache, float(shift), float(scale)
+
+    def __call__(self, X: Tensor) -> Tensor:
+        return self.cache.mean(X) * self.scale + self.shift

@@ -44,7 +44,7 @@ from torch import Tensor
 
 import safeio
 
-from .kernel_cache import KernelCache
+from .kernel_cache import AffineMean, KernelCache
 from .config import MDEConfig
 from .gp import (
     DTYPE,
@@ -304,6 +304,7 @@ class HeteroscedasticGPMDE:
             noise_cache = KernelCache(noise_model, cfg.nu, dtype, **cache_kw)
             ntf = noise_model.outcome_transform
             affine = (float(ntf.means), float(ntf.stdvs))
+            mean_model.log_noise_fn = AffineMean(noise_cache, *affine)  # posterior reads predict's noise
         else:
             const_noise = float(mean_model.likelihood.noise.reshape(-1)[0])
         info = dict(info, label_mean=mu_z, label_std=sigma_z)
