@@ -360,11 +360,8 @@ class HeteroscedasticGPMDE:
         f = self._fitted
         if f.noise_cache is None:
             return f.const_noise_z
-        m, s = f.noise_affine
-        log_noise = f.noise_cache.mean(X).mul_(s).add_(m)  # log variance, label units
-        # capped at the largest training noise (see MDEGP.noise_variance)
-        log_noise = log_noise.clamp_max_(f.mean_model.log_noise_max)
-        return log_noise.exp_().div_(f.sigma_z**2).clamp_min_(self._config.noise_floor)
+        # one home for the noise (cached mean, cap, floor): what the BoTorch posterior reads too
+        return f.mean_model.noise_variance(X.to(torch.float64))
 
     def posterior(self, X: Tensor, observation_noise: bool = False) -> Posterior:
         """Shortcut for ``self.model.posterior`` (label units; see the class docstring)."""
