@@ -11,6 +11,12 @@ from the cache) with each seed and scored there: the state distance d and the er
 all pours, and the error and bias of v_tgt on the pours that moved water (|dv_tgt| > 0.02), which
 are the pours a plan needs; then the same for the mean of the seeds' models.
 
+``--heldout-data FILE`` scores on a cached dataset of another data config instead (for variants
+whose training data differ, e.g. a data-coverage change); its transitions that also occur in a
+variant's training data are dropped (datasets of one seed share their first trajectories).
+The "clean" columns are the pours that moved water and spilled under the problems' 2 % limit: the
+only pours a successful plan can use, a minority of the data (BENCHMARKS.md, session 15).
+
 Variants are overrides of ``configs/dynamics`` (default: the default config as it is), e.g.
 ``--variant constant=train.lr_schedule=constant,train.max_epochs=1000,train.batch_size=128,train.lr=0.002``.
 Each model is a single one (``model.ensemble=1``): the "mean of seeds" row is the ensemble.
@@ -19,6 +25,7 @@ Each model is a single one (``model.ensemble=1``): the "mean of seeds" row is th
 from __future__ import annotations
 
 import argparse
+import re
 import dataclasses
 from pathlib import Path
 from typing import Any, Sequence
@@ -28,28 +35,52 @@ import numpy as np
 from benchmarks._cli import report
 from task import state_distance
 
+#: spill (fraction of all water) under which a pour counts as "clean": the problems' max_spill
+CLEAN_SPILL = 0.02
+
 
 def scores(pred: np.ndarray, ds: Any) -> dict[str, float]:
     """Errors of predictions ``pred`` [n, 5] on transitions ``ds``: pours, and pours that moved water."""
     true = ds.s_next.astype(float)
     pour = ds.skill() == 1
     moved = pour & (np.abs(ds.s_next[:, 4] - ds.s[:, 4]) > 0.02)
+    spilled = (ds.s[:, 3] + ds.s[:, 4]) - (ds.s_next[:, 3] + ds.s_next[:, 4])  # water this pour spilled
+    clean = moved & (spilled < CLEAN_SPILL)
     d = state_distance(pred, true)
     e = pred[:, 4] - true[:, 4]
-    return {"pour_mean_d": float(d[pour].mean()), "pour_mae_v_tgt": float(np.abs(e[pour]).mean()),
-            "moved_mae_v_tgt": float(np.abs(e[moved]).mean()), "moved_bias_v_tgt": float(e[moved].mean()),
-            "move_mean_d": float(d[~pour].mean()), "n_pour": int(pour.sum()), "n_moved": int(moved.sum())}
+    mean = lambda v, m: float(v[m].mean()) if m.any() else float("nan")  # noqa: E731
+    return {"pour_mean_d": mean(d, pour), "pour_mae_v_tgt": mean(np.abs(e), pour),
+            "moved_mae_v_tgt": mean(np.abs(e), moved), "moved_bias_v_tgt": mean(e, moved),
+            "clean_mae_v_tgt": mean(np.abs(e), clean), "clean_bias_v_tgt": mean(e, clean),
+            "move_mean_d": mean(d, ~pour), "n_pour": int(pour.sum()), "n_moved": int(moved.sum()),
+            "n_clean": int(clean.sum())}
 
 
-def run(variants: dict[str, list[str]], seeds: Sequence[int], heldout_batches: int) -> dict[str, Any]:
+def _unseen(held: Any, train: Any) -> np.ndarray:
+    """Rows of ``held`` whose (s, a) is not a row of ``train``."""
+    key = lambda t: {r.tobytes() for r in np.c_[t.s, t.a].astype(np.float32)}  # noqa: E731
+    seen = key(train)
+    return np.array([r.tobytes() not in seen for r in np.c_[held.s, held.a].astype(np.float32)], dtype=bool)
+
+
+def run(variants: dict[str, list[str]], seeds: Sequence[int], heldout_batches: int,
+        heldout_data: Path | None = None) -> dict[str, Any]:
     from dynamics import load_or_generate_dataset, load_or_train
+    from dynamics.data import Transitions
     from dynamics.evaluate import compose_config
 
     out: dict[str, Any] = {"heldout_batches": heldout_batches, "seeds": list(seeds), "variants": {}}
     held = None
+    configs = {name: compose_config("default", ["model.ensemble=1", *o]) for name, o in variants.items()}
+    if heldout_data is not None:  # every variant is scored on the rows none of them trained on
+        held = Transitions.load(heldout_data)
+        out["heldout"] = {"file": str(heldout_data), "transitions": len(held)}
+        for cfg in configs.values():
+            held = held.subset(np.flatnonzero(_unseen(held, load_or_generate_dataset(cfg))))
+        out["heldout"]["unseen_transitions"] = len(held)
     for name, overrides in variants.items():
-        cfg = compose_config("default", ["model.ensemble=1", *overrides])
-        if held is None:
+        cfg = configs[name]
+        if held is None:  # the batches past the training data (the same for every variant)
             data, n_train = cfg.data, cfg.data.n_batches
             if heldout_batches <= n_train:
                 raise ValueError(f"--heldout-batches {heldout_batches}: allowed > data.n_batches = {n_train}")
@@ -57,7 +88,7 @@ def run(variants: dict[str, list[str]], seeds: Sequence[int], heldout_batches: i
                 cfg.data, n_batches=heldout_batches)))
             held = big.subset(np.flatnonzero(big.traj >= n_train * cfg.data.batch_size))
             out["heldout"] = {"batches": [n_train, heldout_batches], "transitions": len(held)}
-        elif cfg.data != data:
+        elif heldout_data is None and cfg.data != data:
             raise ValueError(f"variant {name}: its data.* differ from the first variant's; all variants must share "
                              "the training data to be scored on the same held-out batches")
         rows, preds = [], []
@@ -75,9 +106,11 @@ def run(variants: dict[str, list[str]], seeds: Sequence[int], heldout_batches: i
 
 
 def format_table(r: dict[str, Any]) -> str:
-    cols = ("pour_mean_d", "pour_mae_v_tgt", "moved_mae_v_tgt", "moved_bias_v_tgt")
+    cols = ("pour_mean_d", "moved_mae_v_tgt", "moved_bias_v_tgt", "clean_mae_v_tgt", "clean_bias_v_tgt")
     h = r["heldout"]
-    lines = [f"held-out source batches {h['batches'][0]}-{h['batches'][1] - 1} ({h['transitions']} transitions)",
+    what = (f"{h['file']} ({h['unseen_transitions']} transitions no variant trained on)" if "file" in h else
+            f"source batches {h['batches'][0]}-{h['batches'][1] - 1} ({h['transitions']} transitions)")
+    lines = [f"held out: {what}",
              f"{'variant':<14}{'model':<14}" + "".join(f"{c:>18}" for c in cols) + f"{'epochs':>8}{'train s':>9}"]
     for name, v in r["variants"].items():
         for row in v["per_seed"]:
@@ -92,6 +125,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.dynamics_heldout", description=__doc__.split("\n\n")[0])
     ap.add_argument("--heldout-batches", type=int, default=96,
                     help="size of the larger dataset whose batches past data.n_batches are the held-out set")
+    ap.add_argument("--heldout-data", type=Path, default=None, metavar="FILE",
+                    help="score on this cached dataset (dataset.pt of another data config) instead")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds per variant")
     ap.add_argument("--variant", action="append", default=[], metavar="NAME=OVERRIDES",
                     help="a named variant: comma-separated overrides of configs/dynamics (repeatable)")
@@ -102,8 +137,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         name, sep, over = v.partition("=")
         if not sep or not name:
             ap.error(f"--variant {v!r}: allowed NAME=key=value,key=value (or NAME= for the default config)")
-        variants[name] = [o for o in over.split(",") if o]
-    r = run(variants, args.seeds, args.heldout_batches)
+        variants[name] = [o for o in re.split(r",(?![^\[]*\])", over) if o]  # commas inside [..] stay
+    if args.heldout_data is not None and not args.heldout_data.is_file():
+        ap.error(f"--heldout-data {args.heldout_data}: no such file")
+    r = run(variants, args.seeds, args.heldout_batches, args.heldout_data)
     report(format_table(r), r, args.out)
     return 0
 
