@@ -165,6 +165,20 @@ def ceiling_dataset(world, pool, exp, executor, n_train: int, seed: int, batch: 
             "train_plans_found": np.array(sum(p is not None for p in plans))}
 
 
+def ceiling_subset(data: dict, k: int) -> dict:
+    """The first k // 2 random-plan and k - k // 2 random-action trajectories of a saved ceiling dataset
+    (:func:`ceiling_dataset`: plans first, then random actions, n // 2 of each), renumbered; for a
+    learning curve of the ceiling over data from one simulated set."""
+    n = len(data["category"])
+    if not 2 <= k <= n:
+        raise ValueError(f"--ceiling-trajectories {k} with --ceiling-data: allowed 2..{n} (the file's trajectories)")
+    ids = np.r_[np.arange(k // 2), n // 2 + np.arange(k - k // 2)]
+    rows = np.isin(data["trajectory"], ids)
+    renum = np.searchsorted(ids, data["trajectory"][rows])
+    return {"s": data["s"][rows], "a": data["a"][rows], "s_next": data["s_next"][rows], "trajectory": renum,
+            "category": data["category"][ids], "train_plans_found": np.array(-1)}  # unknown for a subset
+
+
 def ceiling(world, dyn, pool, exp, executor, make_mde, n_train: int, n: int, seed: int,
             data_path: Path | None = None, reuse: bool = False) -> dict:
     """Fit the MDE on n_train target-world trajectories (:func:`ceiling_dataset`), then plan n fresh
@@ -172,7 +186,8 @@ def ceiling(world, dyn, pool, exp, executor, make_mde, n_train: int, n: int, see
 
     ``data_path`` (``.npz``): the training transitions are written there before the fit, so that
     MDE variants can be studied offline; with ``reuse`` they are read from there instead of being
-    simulated again (labels are always recomputed with ``dyn``)."""
+    simulated again (labels are always recomputed with ``dyn``), all of them or, with ``n_train`` > 0,
+    :func:`ceiling_subset` of them."""
     import torch
 
     from planner import features
@@ -186,6 +201,8 @@ def ceiling(world, dyn, pool, exp, executor, make_mde, n_train: int, n: int, see
             raise FileNotFoundError(f"--ceiling-data {data_path}: no such file")
         with np.load(data_path) as f:
             data = {k: f[k] for k in f.files}
+        if n_train:
+            data = ceiling_subset(data, n_train)
         n_train = len(data["category"])
     else:
         data = ceiling_dataset(world, pool, exp, executor, n_train, seed)
@@ -390,7 +407,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--hold", type=float, default=0.5, help="hold time of the reproducibility pours, s")
     ap.add_argument("--slots", type=int, default=32, help="environment slots / approaches per reproducibility pour")
     ap.add_argument("--problems", type=int, default=30, help="problems per planning rung")
-    ap.add_argument("--ceiling-trajectories", type=int, default=128, help="target-world training trajectories")
+    ap.add_argument("--ceiling-trajectories", type=int, default=None,
+                    help="target-world training trajectories (default 128; with --ceiling-data: all of the file's, "
+                         "or this many of them, half random plans and half random actions)")
     ap.add_argument("--ceiling-data", type=Path, default=None,
                     help="reuse the training transitions of an earlier run (its DIR/ceiling_train.npz) instead "
                          "of simulating them; labels are recomputed with the current dynamics model")
@@ -406,9 +425,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     # `--rungs a b key=value`: argparse hands the overrides to --rungs; they are overrides
     args.overrides = [r for r in args.rungs if "=" in r] + list(args.overrides) + extra
     args.rungs = [r for r in args.rungs if "=" not in r]
-    if args.problems < 1 or args.ceiling_trajectories < 2 or args.slots < 2:
-        raise SystemExit(f"--problems {args.problems} / --ceiling-trajectories {args.ceiling_trajectories} / "
-                         f"--slots {args.slots}: allowed >= 1 / >= 2 / >= 2")
+    n_ceiling = args.ceiling_trajectories
+    if n_ceiling is None:
+        args.ceiling_trajectories = 0 if args.ceiling_data is not None else 128  # 0: all of the file's
+    elif n_ceiling < 2:
+        raise SystemExit(f"--ceiling-trajectories {n_ceiling}: allowed >= 2")
+    if args.problems < 1 or args.slots < 2:
+        raise SystemExit(f"--problems {args.problems} / --slots {args.slots}: allowed >= 1 / >= 2")
     if args.model_seeds is not None and (len(set(args.model_seeds)) != len(args.model_seeds)
                                          or min(args.model_seeds) < 0):
         raise SystemExit(f"--model-seeds {args.model_seeds}: allowed distinct integers >= 0")

@@ -87,6 +87,18 @@ class PouringExecutor:
             s.close()
         self._solvers.clear()
 
+    def start_obstacles(self, world: str, starts: np.ndarray, plant_jitter: np.ndarray | None = None) -> list[str | None]:
+        """Per start pose (x, y[, theta]): the obstacle the cup would overlap there (what :meth:`run` refuses),
+        or None where it is clear. For callers that build start grids, such as benchmarks."""
+        check_world(world)
+        starts = np.asarray(starts, float).reshape(len(starts), -1)
+        if starts.shape[1] == 2:
+            starts = np.concatenate([starts, np.zeros((len(starts), 1))], 1)
+        jit = np.zeros((len(starts), 3)) if plant_jitter is None else np.asarray(plant_jitter, float).reshape(-1, 3)
+        lo, hi = np.full(2, self.cfg.floor), np.asarray(self.cfg.sim["domain"], float) - self.cfg.floor
+        return [start_overlap(Obstacles(self.cfg.scene(world, p, j).bodies[1:], lo, hi), self._boundary, p)
+                for p, j in zip(starts, jit)]
+
     def run(self, world: str, starts: np.ndarray, actions: Sequence[Sequence[Sequence[float]]],
             plant_jitter: np.ndarray | None = None, goals: Sequence[float] | None = None,
             frame_every: float | None = None, progress: bool = False,
@@ -126,7 +138,7 @@ class PouringExecutor:
         scheds: list[Schedule] = []
         for b in range(B):
             obst = Obstacles(specs[b].bodies[1:], interior_lo, interior_hi)
-            name = start_overlap(obst, self._boundary, starts[b])
+            name = start_overlap(obst, self._boundary, starts[b])  # as start_obstacles
             if name is not None:
                 raise ValueError(f"starts[{b}] = {starts[b].tolist()}: the cup overlaps the {name} there; "
                                  f"choose a start pose clear of every obstacle")

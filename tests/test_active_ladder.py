@@ -87,3 +87,21 @@ def test_model_only_rungs_over_several_models_report_mean_range_and_each_model()
     assert "(mean of 2 models: 0.20-0.40)" in table({"source_model_only": out})
     one = _over_models([rec(3, 0.5, 0.1, 0.08)])
     assert "model_seed" not in one and one["success"] == 0.1 and "per_model_seed" not in one
+
+
+def test_ceiling_subset_keeps_half_plans_half_random_actions():
+    """--ceiling-data with --ceiling-trajectories k: the first k/2 of each half of the saved set, renumbered."""
+    import numpy as np
+
+    from active.ladder import ceiling_subset
+
+    d = {"s": np.arange(10.0)[:, None] * np.ones((1, 5)), "a": np.zeros((10, 3)), "s_next": np.zeros((10, 5)),
+         "trajectory": np.array([0, 0, 1, 2, 2, 3, 4, 5, 5, 7]), "category": np.array(list("abcdefgh"))}
+    r = ceiling_subset(d, 4)  # plans 0, 1 and random-action trajectories 4, 5 of 8
+    np.testing.assert_array_equal(r["trajectory"], [0, 0, 1, 2, 3, 3])
+    np.testing.assert_array_equal(r["category"], list("abef"))
+    np.testing.assert_array_equal(r["s"][:, 0], [0, 1, 2, 6, 7, 8])
+    with pytest.raises(ValueError, match=r"--ceiling-trajectories 9 with --ceiling-data: allowed 2..8"):
+        ceiling_subset(d, 9)
+    with pytest.raises(SystemExit, match=r"--ceiling-trajectories 1: allowed >= 2"):
+        main(["--out", "unused", "--ceiling-trajectories", "1"])

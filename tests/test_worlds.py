@@ -184,6 +184,17 @@ def test_bad_input_fails_before_simulating(cfg, kwargs, match):
     assert ex._solvers == {}  # nothing was built or simulated
 
 
+def test_start_obstacles_names_what_run_refuses(cfg):
+    """start_obstacles says per start what run would refuse (the same check), without simulating."""
+    ex = PouringExecutor(cfg)
+    starts = np.array([[0.30, 0.10], [0.42, 0.20]])
+    assert ex.start_obstacles("target", starts) == ["target body", None]
+    assert ex.start_obstacles("target", starts[1:], np.array([[0.008, 0.008, 0.05]])) == [None]
+    with pytest.raises(ValueError, match="overlaps the target body"):
+        ex.run("target", starts[:1], [[pour(0.1, 0.1)]])
+    assert ex._solvers == {}
+
+
 def test_actions_come_back_as_executed_on_the_lattice(cfg):
     """A move target is returned rounded to ``skills.lattice``, where the cup really goes, so a recorded
     transition pairs the outcome with the action that produced it; pours and continuous worlds are untouched."""
