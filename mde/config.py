@@ -31,6 +31,10 @@ class MDEConfig:
 
     #: Smoothness of the Matern kernel (ARD, inside a ScaleKernel).
     nu: float = 2.5
+    #: Upper bound of every ARD lengthscale (mean and noise GP), in standard deviations of that
+    #: input over the GP's training points; None: unbounded. Keeps the log-noise GP from smoothing
+    #: over a whole input's range (BENCHMARKS.md, session 15).
+    lengthscale_max: float | None = None
     #: Most-likely heteroscedastic GP (True) or a homoscedastic GP (False, for ablation).
     heteroscedastic: bool = True
     #: "none": raw (s, a) features as in the paper; "normalize": BoTorch ``Normalize`` with the
@@ -85,6 +89,8 @@ class MDEConfig:
             raise ValueError(
                 f"predict_dtype must be one of {ALLOWED_PREDICT_DTYPE}, got {self.predict_dtype!r}"
             )
+        if self.lengthscale_max is not None:
+            _positive_float(self, "lengthscale_max")
         _positive_float(self, "prior_std")
         _positive_float(self, "noise_floor")
         _positive_float(self, "jitter")

@@ -26,7 +26,7 @@ from botorch.models.transforms.outcome import Standardize
 from botorch.optim.closures import ForwardBackwardClosure
 from botorch.optim.utils import get_parameters_and_bounds
 from botorch.posteriors.gpytorch import GPyTorchPosterior
-from gpytorch.constraints import GreaterThan
+from gpytorch.constraints import GreaterThan, Interval
 from gpytorch.distributions import MultivariateNormal
 from gpytorch.kernels import MaternKernel, ScaleKernel
 from gpytorch.likelihoods import GaussianLikelihood
@@ -337,20 +337,32 @@ def data_bounds(X: Tensor) -> Tensor:
     return torch.stack([lo, hi])
 
 
-def _kernel(nu: float, d: int, X_t: Tensor) -> ScaleKernel:
+def _kernel(nu: float, d: int, X_t: Tensor, lengthscale_max: float | None = None) -> ScaleKernel:
     """ARD Matern in a ScaleKernel, lengthscales initialised at twice each input's spread.
 
     Inputs are unscaled by default, so GPyTorch's fixed initial lengthscale (0.69) could be orders
     of magnitude off for some features; a data-based start keeps L-BFGS out of flat regions.
+    ``lengthscale_max`` (in standard deviations of each input over ``X_t``): an upper bound on every
+    lengthscale (GPyTorch ``Interval``; a constant input's std counts as 1), starting at half the
+    bound. Why: on simulator data the log-noise GP's marginal likelihood prefers a lengthscale in
+    the cup's height longer than the whole move range, which smears the noise of pours that hit a
+    leaf over the safe pours 3 cm below (BENCHMARKS.md, session 15).
     """
-    base = MaternKernel(nu=nu, ard_num_dims=d)
-    k = ScaleKernel(base).to(DTYPE)
     if X_t.shape[0] > 1:
-        spread = X_t.std(dim=0)
+        raw_std = X_t.std(dim=0)
     else:
-        spread = torch.ones(d, dtype=DTYPE)
-    spread = torch.where(spread > 1e-6, 2.0 * spread, torch.ones_like(spread))
-    base.lengthscale = spread.reshape(1, d)
+        raw_std = torch.ones(d, dtype=DTYPE)
+    varies = raw_std > 1e-6
+    std = torch.where(varies, raw_std, torch.ones_like(raw_std)).to(DTYPE)
+    if lengthscale_max is None:
+        base = MaternKernel(nu=nu, ard_num_dims=d)
+        start = torch.where(varies, 2.0 * std, std)  # a constant input starts at 1
+    else:
+        hi = lengthscale_max * std
+        base = MaternKernel(nu=nu, ard_num_dims=d, lengthscale_constraint=Interval(1e-4 * std, hi))
+        start = 0.5 * hi
+    k = ScaleKernel(base).to(DTYPE)
+    base.lengthscale = start.reshape(1, d)
     k.outputscale = torch.tensor(1.0, dtype=DTYPE)
     return k
 
@@ -376,6 +388,7 @@ def build_mean_gp(
     bounds: Tensor | None,
     noise_floor: float,
     train_Yvar: Tensor | None = None,
+    lengthscale_max: float | None = None,
 ) -> MDEGP:
     """Mean GP on deviations: z-scored labels, prior mean fixed at zero deviation.
 
@@ -395,7 +408,7 @@ def build_mean_gp(
             Y,
             train_Yvar=None if train_Yvar is None else train_Yvar.reshape(-1, 1),
             likelihood=likelihood,
-            covar_module=_kernel(nu, X.shape[-1], _transformed(X, bounds)),
+            covar_module=_kernel(nu, X.shape[-1], _transformed(X, bounds), lengthscale_max),
             mean_module=ConstantMean().to(DTYPE),
             outcome_transform=Standardize(m=1),
             input_transform=_input_transform(bounds),
@@ -408,7 +421,8 @@ def build_mean_gp(
     return model
 
 
-def build_noise_gp(X: Tensor, log_noise: Tensor, *, nu: float, bounds: Tensor | None) -> SingleTaskGP:
+def build_noise_gp(X: Tensor, log_noise: Tensor, *, nu: float, bounds: Tensor | None,
+                   lengthscale_max: float | None = None) -> SingleTaskGP:
     """GP on the log of the empirical noise variance (z-scored label units), learned mean."""
     likelihood = GaussianLikelihood(noise_constraint=GreaterThan(1e-4)).to(DTYPE)
     likelihood.noise = torch.tensor(0.5, dtype=DTYPE)
@@ -418,7 +432,7 @@ def build_noise_gp(X: Tensor, log_noise: Tensor, *, nu: float, bounds: Tensor | 
             X,
             log_noise.reshape(-1, 1),
             likelihood=likelihood,
-            covar_module=_kernel(nu, X.shape[-1], _transformed(X, bounds)),
+            covar_module=_kernel(nu, X.shape[-1], _transformed(X, bounds), lengthscale_max),
             mean_module=ConstantMean().to(DTYPE),
             outcome_transform=Standardize(m=1),
             input_transform=_input_transform(bounds),

@@ -212,7 +212,7 @@ class HeteroscedasticGPMDE:
             subset = torch.randperm(n, generator=gen)[: cfg.max_fit_points].sort().values
         Xf, yf = (X, y) if subset is None else (X[subset], y[subset])
         fit_kw = dict(maxiter=cfg.fit_maxiter, jitter=cfg.jitter, max_tries=cfg.max_jitter_tries)
-        build_kw = dict(nu=cfg.nu, bounds=bounds, noise_floor=cfg.noise_floor)
+        build_kw = dict(nu=cfg.nu, bounds=bounds, noise_floor=cfg.noise_floor, lengthscale_max=cfg.lengthscale_max)
 
         homo = build_mean_gp(Xf, yf, **build_kw)
         homo_ml = fit_gp(homo, **fit_kw)
@@ -250,7 +250,8 @@ class HeteroscedasticGPMDE:
         for it in range(1, cfg.max_iters + 1):
             try:
                 log_noise = _empirical_log_noise(current, cfg) + math.log(sigma2)  # label units
-                noise_gp = build_noise_gp(X, log_noise, nu=cfg.nu, bounds=build_kw["bounds"])
+                noise_gp = build_noise_gp(X, log_noise, nu=cfg.nu, bounds=build_kw["bounds"],
+                                          lengthscale_max=cfg.lengthscale_max)
                 if prev_noise is not None:  # warm start: later iterations move little
                     noise_gp.covar_module.load_state_dict(prev_noise.covar_module.state_dict())
                     noise_gp.likelihood.load_state_dict(prev_noise.likelihood.state_dict())
@@ -417,14 +418,16 @@ class HeteroscedasticGPMDE:
         bounds = state["bounds"]
         noise_model = None
         if state["noise_X"] is not None:
-            noise_model = build_noise_gp(state["noise_X"], state["noise_Y"], nu=cfg.nu, bounds=bounds)
-        mean_model = build_mean_gp(
+            noise_model = build_noise_gp(state["noise_X"], state["noise_Y"], nu=cfg.nu, bounds=bounds,
+                                         lengthscale_max=cfg.lengthscale_max)
+        mean_model = build_mean_gp(  # the lengthscale bounds come back with the saved state
             state["X"],
             state["y"],
             nu=cfg.nu,
             bounds=bounds,
             noise_floor=cfg.noise_floor,
             train_Yvar=state["train_Yvar"],
+            lengthscale_max=cfg.lengthscale_max,
         )
         if noise_model is not None:
             mean_model.set_noise_model(noise_model)  # a submodule: its state is in mean_state

@@ -25,6 +25,7 @@ def _data(n: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
         {"input_scaling": "normalize", "nu": 1.5},
         {"max_fit_points": 40},
         {"predict_dtype": "float64"},
+        {"lengthscale_max": 2.0, "max_fit_points": 40},  # the bounds come back with the state
     ],
 )
 def test_round_trip_predicts_identically(tmp_path, config):

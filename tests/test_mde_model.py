@@ -254,3 +254,23 @@ def test_log_chi2_bias_constant():
 
     digamma_half = torch.digamma(torch.tensor(0.5, dtype=torch.float64)).item()
     assert LOG_CHI2_BIAS == pytest.approx(-(digamma_half + math.log(2.0)), rel=1e-12)
+
+
+def test_lengthscales_stay_under_their_bound():
+    """lengthscale_max: every lengthscale of the mean and the noise GP at most that many stds of its input,
+    where the unbounded fit's noise GP goes far beyond (a feature the noise does not depend on)."""
+    torch.manual_seed(0)
+    X, y = _data_4d(120, seed=5)
+    X = X * torch.tensor([1.0, 10.0, 0.1, 100.0])  # unscaled features
+    std = X.std(dim=0)
+    free = HeteroscedasticGPMDE(max_iters=2, **T1).fit(X, y)
+    capped = HeteroscedasticGPMDE(max_iters=2, lengthscale_max=2.0, **T1).fit(X, y)
+    ls = lambda gp: gp.covar_module.base_kernel.lengthscale.detach().reshape(-1)  # noqa: E731
+    assert (ls(free.noise_model) / std).max() > 2.0
+    for gp in (capped.model, capped.noise_model):
+        assert ((ls(gp) / std) <= 2.0 * (1 + 1e-9)).all()
+    mean, std_pred = capped.predict(X[:10])
+    post = capped.model.posterior(X[:10].unsqueeze(1), observation_noise=True)
+    torch.testing.assert_close(post.variance.reshape(-1).sqrt(), std_pred, rtol=1e-6, atol=1e-8)
+    with pytest.raises(ValueError, match=r"lengthscale_max must be a finite number > 0, got -1"):
+        HeteroscedasticGPMDE(lengthscale_max=-1.0)
