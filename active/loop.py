@@ -82,9 +82,11 @@ def comparable_config(cfg: Mapping[str, Any]) -> dict:
     c.get("planner", {}).pop("workers", None)  # where plans are computed, not what they are
     if isinstance(c.get("acquisition"), dict):
         c["acquisition"] = legacy_acquisition(c["acquisition"])
-    for k, off in NEUTRAL_EXPERIMENT_SETTINGS.items():  # a setting added later, at its "off" value
-        if k in c.get("experiment", {}) and c["experiment"][k] == off:
-            c["experiment"].pop(k)
+    for group, neutral in (("experiment", NEUTRAL_EXPERIMENT_SETTINGS), ("mde", NEUTRAL_MDE_SETTINGS)):
+        node = c.get(group)
+        for k, off in neutral.items():  # a setting added later, at its "off" value
+            if isinstance(node, dict) and k in node and node[k] == off:
+                node.pop(k)
     return c
 
 
@@ -125,6 +127,8 @@ def _changed_method_specs(c: Mapping[str, Any]) -> dict:
 #: experiment keys added after runs existed, with the value that changes nothing: left out of the digest
 #: so that a directory written before the key existed still resumes
 NEUTRAL_EXPERIMENT_SETTINGS = {"plan_goal_tol": None}
+#: the same for the MDE's keys
+NEUTRAL_MDE_SETTINGS = {"lengthscale_max": None}
 
 
 def config_digest(cfg: Mapping[str, Any]) -> str:

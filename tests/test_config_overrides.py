@@ -188,6 +188,9 @@ def test_documented_overrides_arrive():
     assert compose_config(["acquisition.gamma=0.9"])["acquisition"]["gamma"] == 0.9
     for m in ("random_actions", "random_plan", "active_cautious", "active_mean", "active_balanced"):
         assert settings([f"method={m}"])[0].methods == (m,)
+    from hydra.utils import instantiate  # README: bound every MDE lengthscale
+
+    assert instantiate(compose_config(["mde.lengthscale_max=2"])["mde"]).config.lengthscale_max == 2.0
 
 
 def test_the_acquisition_group_keeps_the_digests_of_runs_written_before_it():
@@ -256,6 +259,16 @@ OLD_TINY_EXPERIMENT = {
     "beta_train": [-2.0, 1.0], "beta_switch_iteration": 1, "beta_test": 2.0, "calibration_trajectories": 2,
     "planner_propagation_budget": 500, "plan_goal_tol": None,
 }
+
+
+def test_an_mde_key_added_later_keeps_the_digest_at_its_off_value():
+    """mde.lengthscale_max (session 15): null is the behaviour before it existed, so a run directory written
+    then keeps its digest; any bound is another configuration."""
+    new = compose_config(["experiment=tiny"])
+    assert new["mde"]["lengthscale_max"] is None
+    old = {**new, "mde": {k: v for k, v in new["mde"].items() if k != "lengthscale_max"}}
+    assert config_digest(old) == config_digest(new)
+    assert config_digest(compose_config(["experiment=tiny", "mde.lengthscale_max=2"])) != config_digest(new)
 
 
 def test_a_run_directory_recorded_before_the_derived_keys_still_resumes():
