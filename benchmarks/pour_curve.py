@@ -34,11 +34,11 @@ def _position(text: str) -> tuple[float, float]:
 
 
 def plant_jitters(world, k: int, seed: int = 0) -> np.ndarray:
-    """k plant-pose jitters (dx, dy, dtilt) drawn uniformly within the world's ranges, as the problems draw them."""
-    pl = world.plant
+    """k plant-pose jitters (dx, dy, dtilt), drawn as the problems draw them (:func:`task.problems.draw_plant_jitter`)."""
+    from task.problems import draw_plant_jitter
+
     rng = np.random.default_rng(seed)
-    lim = np.array([pl["jitter_xy"], pl["jitter_xy"], pl["jitter_tilt"]], float)
-    return rng.uniform(-1.0, 1.0, size=(k, 3)) * lim
+    return np.array([draw_plant_jitter(world.plant, rng) for _ in range(k)])
 
 
 def run(positions: Sequence[tuple[float, float]], holds: Sequence[float], thetas: np.ndarray,
@@ -81,9 +81,9 @@ def run(positions: Sequence[tuple[float, float]], holds: Sequence[float], thetas
     for key in dict.fromkeys(keys):
         idx = np.array([i for i, k in enumerate(keys) if k == key]).reshape(len(thetas), nj)  # angle x plant pose
         nan = float("nan")  # a plant pose that leaves no room for the cup here: not run
-        vt = np.array([[res[i].states[-1, 4] if res[i] else nan for i in row] for row in idx])
-        spill = np.array([[res[i].final_spill if res[i] else nan for i in row] for row in idx])
-        stuck = np.array([[bool(res[i].stuck) if res[i] else False for i in row] for row in idx])
+        vt = np.array([[nan if res[i] is None else res[i].states[-1, 4] for i in row] for row in idx])
+        spill = np.array([[nan if res[i] is None else res[i].final_spill for i in row] for row in idx])
+        stuck = np.array([[res[i] is not None and bool(res[i].stuck) for i in row] for row in idx])
         ran_here = ~np.isnan(vt[0])
         if not ran_here.any():
             curves.append({"x": key[0], "y": key[1], "hold": key[2], "blocked_by": blocked[idx[0, 0]]})

@@ -95,9 +95,13 @@ class PouringExecutor:
         if starts.shape[1] == 2:
             starts = np.concatenate([starts, np.zeros((len(starts), 1))], 1)
         jit = np.zeros((len(starts), 3)) if plant_jitter is None else np.asarray(plant_jitter, float).reshape(-1, 3)
-        lo, hi = np.full(2, self.cfg.floor), np.asarray(self.cfg.sim["domain"], float) - self.cfg.floor
-        return [start_overlap(Obstacles(self.cfg.scene(world, p, j).bodies[1:], lo, hi), self._boundary, p)
+        return [start_overlap(self._obstacles(self.cfg.scene(world, p, j)), self._boundary, p)
                 for p, j in zip(starts, jit)]
+
+    def _obstacles(self, spec) -> Obstacles:
+        """The scene's bodies other than the controlled cup, inside the tank's interior."""
+        lo, hi = np.full(2, self.cfg.floor), np.asarray(self.cfg.sim["domain"], float) - self.cfg.floor
+        return Obstacles(spec.bodies[1:], lo, hi)
 
     def run(self, world: str, starts: np.ndarray, actions: Sequence[Sequence[Sequence[float]]],
             plant_jitter: np.ndarray | None = None, goals: Sequence[float] | None = None,
@@ -133,12 +137,10 @@ class PouringExecutor:
 
         # --- kinematic schedules with contact (numpy, before any simulation)
         t0 = time.perf_counter()
-        interior_lo = np.full(2, cfg.floor)
-        interior_hi = np.asarray(cfg.sim["domain"], float) - cfg.floor
         scheds: list[Schedule] = []
         for b in range(B):
-            obst = Obstacles(specs[b].bodies[1:], interior_lo, interior_hi)
-            name = start_overlap(obst, self._boundary, starts[b])  # as start_obstacles
+            obst = self._obstacles(specs[b])
+            name = start_overlap(obst, self._boundary, starts[b])
             if name is not None:
                 raise ValueError(f"starts[{b}] = {starts[b].tolist()}: the cup overlaps the {name} there; "
                                  f"choose a start pose clear of every obstacle")

@@ -48,6 +48,13 @@ def _block(world_cfg: Any, name: str) -> Mapping[str, Any]:
     return world_cfg[name] if isinstance(world_cfg, Mapping) else getattr(world_cfg, name)
 
 
+def draw_plant_jitter(plant: Any, rng: np.random.Generator) -> np.ndarray:
+    """One plant-pose jitter (dx, dy (m), dtilt (rad)), uniform within the world's ``plant.jitter_xy`` /
+    ``jitter_tilt``; three draws from ``rng`` in that order (the problems' random stream depends on it)."""
+    return np.array([rng.uniform(-1, 1) * plant["jitter_xy"], rng.uniform(-1, 1) * plant["jitter_xy"],
+                     rng.uniform(-1, 1) * plant["jitter_tilt"]])
+
+
 def sample_problems(world_cfg: Any, n: int, seed: int | np.random.Generator,
                     world: str = "target") -> list[Problem]:
     """``n`` problems from the world's ``problems:`` block; the same seed gives the same problems.
@@ -67,8 +74,7 @@ def sample_problems(world_cfg: Any, n: int, seed: int | np.random.Generator,
     for _ in range(n):
         x = rng.uniform(*pr["start_x"])
         y = rng.uniform(*pr["start_y"])
-        jit = np.array([rng.uniform(-1, 1) * pl["jitter_xy"], rng.uniform(-1, 1) * pl["jitter_xy"],
-                        rng.uniform(-1, 1) * pl["jitter_tilt"]])
+        jit = draw_plant_jitter(pl, rng)
         if world == "source":
             jit[:] = 0.0
         x, y = on_lattice((x, y), lattice)
