@@ -21,6 +21,7 @@ dynamics model (the same config composition as ``python -m active.run``, overrid
     python -m active.ladder --out DIR --rungs source_model_only target_model_only --model-seeds 0 1 2
     python -m active.ladder --out DIR --rungs ceiling --ceiling-data benchmarks/ceiling_train_s15_512.npz \
         --ceiling-trajectories 256 -- experiment.planner_propagation_budget=30000   # a saved set, or part of it
+    python -m active.ladder --out DIR --rungs ceiling --ceiling-seeds 0 1 2      # three training sets: mean, range
 
 Writes ``DIR/ladder.json`` (atomically, after each rung, so a killed run keeps the rungs it finished)
 and prints a table with the issue's targets next to the measured figures.
@@ -262,15 +263,21 @@ def _admission(mu: np.ndarray, sd: np.ndarray, y: np.ndarray, exp, prefix: str) 
 
 
 def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[float], hold: float, n: int,
-               n_train: int, slots: int = 32, progress: bool = True, ceiling_data: Path | None = None,
-               model_seeds: Sequence[int] | None = None) -> dict:
+               n_train: int, slots: int = 32, progress: bool = True,
+               ceiling_data: Path | Sequence[Path] | None = None, model_seeds: Sequence[int] | None = None,
+               ceiling_seeds: Sequence[int] | None = None) -> dict:
     """Measure the requested rungs; ``ladder.json`` is rewritten after each one.
 
     ``model_seeds``: the model-only rungs are measured with a dynamics model trained with each of these
     seeds (``dynamics.train.seed``; each cached by its config hash) on the same data and problems, and
     report the mean over the models with each model's figures (``per_model_seed``): one training draw
     moves the source rung by up to 0.4 (BENCHMARKS.md, session 7). The ceiling uses the first model.
-    None: the config's model only."""
+    None: the config's model only.
+
+    ``ceiling_seeds``: the ceiling is measured once per seed, each with its own training set and test
+    problems (saved to ``DIR/ceiling_train_seed<s>.npz``, or read from the matching ``ceiling_data``
+    file), and reports the mean, the range and each set's record (``per_seed``): one training set moves
+    the ceiling from 0.00 to 0.60 (BENCHMARKS.md, session 15). None: the config's seed only."""
     import dynamics
     from hydra.utils import instantiate
     from sim.execute import PouringExecutor
@@ -286,8 +293,9 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
     unknown = sorted(set(rungs) - set(RUNGS))
     if unknown:
         raise ValueError(f"--rungs {unknown}: allowed any of {list(RUNGS)}")
-    t_start = time.perf_counter()
     seed = int(cfg.get("seed", 0))
+    ceiling_runs = _ceiling_runs(seed, ceiling_seeds, ceiling_data, out)
+    t_start = time.perf_counter()
     exp = ExperimentConfig.from_mapping(cfg["experiment"])
     world = WorldConfig.from_mapping(cfg["world"])
     planner_cfg = build_planner_config(world, cfg["planner"], exp)
@@ -328,12 +336,14 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
                 t0 = time.perf_counter()
                 per_seed[name].append({"model_seed": model_seed,
                                        **model_only(world, name.split("_")[0], pool, exp, executor, n, seed)})
-                save(name, _over_models(per_seed[name]), t0)
+                save(name, _mean_over(per_seed[name], "model_seed"), t0)
             if "ceiling" in rungs and i == 0:
                 t0 = time.perf_counter()
-                save("ceiling", ceiling(world, dyn, pool, exp, executor, make_mde, n_train, n, seed,
-                                        data_path=ceiling_data or out / "ceiling_train.npz",
-                                        reuse=ceiling_data is not None), t0)
+                rows = []
+                for ceiling_seed, data_path, reuse in ceiling_runs:
+                    rows.append({"seed": ceiling_seed, **ceiling(world, dyn, pool, exp, executor, make_mde, n_train,
+                                                                 n, ceiling_seed, data_path=data_path, reuse=reuse)})
+                    save("ceiling", _mean_over(rows, "seed"), t0)
     executor.close()
     result["seconds"] = time.perf_counter() - t_start
     safeio.write_json(path, result, indent=1, default=float)
@@ -343,20 +353,39 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
 RUNGS = ("reproducibility", "source_model_only", "target_model_only", "ceiling")
 
 
-def _over_models(rows: list[dict]) -> dict:
-    """A model-only rung over several dynamics models: the first model's record with found, success and
-    the mean goal error replaced by their means over the models, each model's record in
-    ``per_model_seed`` (a single model: its record as it is)."""
+def _ceiling_runs(seed: int, ceiling_seeds: Sequence[int] | None, ceiling_data: Path | Sequence[Path] | None,
+                  out: Path) -> list[tuple[int, Path, bool]]:
+    """(seed, data file, reuse) of each ceiling measurement; a bad combination raises before any compute."""
+    seeds = [seed] if ceiling_seeds is None else [int(s) for s in ceiling_seeds]
+    if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
+        raise ValueError(f"--ceiling-seeds {list(seeds)}: allowed distinct integers >= 0")
+    if ceiling_data is None:
+        name = (lambda s: "ceiling_train.npz") if ceiling_seeds is None else (lambda s: f"ceiling_train_seed{s}.npz")
+        return [(s, out / name(s), False) for s in seeds]
+    files = [Path(ceiling_data)] if isinstance(ceiling_data, (str, os.PathLike)) else [Path(f) for f in ceiling_data]
+    if len(files) != len(seeds):
+        raise ValueError(f"--ceiling-data has {len(files)} file(s) but --ceiling-seeds {seeds} has {len(seeds)}: "
+                         "give one seed per file (the seed its set was made with: it also draws the test problems)")
+    return [(s, f, True) for s, f in zip(seeds, files)]
+
+
+def _mean_over(rows: list[dict], key: str) -> dict:
+    """A rung measured several times (``key``: ``model_seed``, one dynamics model each; ``seed``, one ceiling
+    training set and test set each): the first record with found, success and the mean goal error replaced
+    by their means, their ranges, the seeds in ``<key>s`` and each record in ``per_<key>`` (a single
+    record: as it is)."""
     if len(rows) == 1:
-        return {k: v for k, v in rows[0].items() if k != "model_seed"}
-    out = {k: v for k, v in rows[0].items() if k not in ("model_seed", "categories")}
+        return {k: v for k, v in rows[0].items() if k != key}
+    out = {k: v for k, v in rows[0].items() if k not in (key, "categories")}
     for k in ("found", "success", "mean_abs_goal_error"):
+        if k not in rows[0]:
+            continue
         vals = [r[k] for r in rows if r[k] is not None]
         out[k] = float(np.mean(vals)) if vals else None
         out[f"{k}_range"] = [float(min(vals)), float(max(vals))] if vals else None
     out["plan_seconds"] = float(sum(r["plan_seconds"] for r in rows))
-    out["model_seeds"] = [r["model_seed"] for r in rows]
-    out["per_model_seed"] = rows
+    out[f"{key}s"] = [r[key] for r in rows]
+    out[f"per_{key}"] = rows
     return out
 
 
@@ -379,9 +408,10 @@ def table(result: dict) -> str:
         v = _get(result, key)
         op, tgt = TARGETS.get(key, (None, None))
         met = "" if v is None or op is None else ("yes" if (v <= tgt if op == "<=" else v >= tgt) else "NO")
-        rng = _get(result, key + "_range")
-        over = "" if rng is None else f"  (mean of {len(_get(result, key.split('.')[0] + '.model_seeds'))} models: " \
-            f"{fmt.format(rng[0])}-{fmt.format(rng[1])})"
+        rng, rung = _get(result, key + "_range"), key.split(".")[0]
+        models, sets = _get(result, rung + ".model_seeds"), _get(result, rung + ".seeds")
+        what = f"{len(models)} models" if models else f"{len(sets or [])} training sets"
+        over = "" if rng is None else f"  (mean of {what}: {fmt.format(rng[0])}-{fmt.format(rng[1])})"
         lines.append(f"{key:34s} {'-' if v is None else fmt.format(v):>9s} "
                      f"{'' if op is None else f'{op} {tgt:g}':>9s}  {met}{over}")
     for r in (_get(result, "reproducibility.pours") or []):
@@ -412,9 +442,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--ceiling-trajectories", type=int, default=None,
                     help="target-world training trajectories (default 128; with --ceiling-data: all of the file's, "
                          "or this many of them, half random plans and half random actions)")
-    ap.add_argument("--ceiling-data", type=Path, default=None,
+    ap.add_argument("--ceiling-data", type=Path, nargs="+", default=None,
                     help="reuse the training transitions of an earlier run (its DIR/ceiling_train.npz) instead "
-                         "of simulating them; labels are recomputed with the current dynamics model")
+                         "of simulating them; labels are recomputed with the current dynamics model "
+                         "(several files: one per --ceiling-seeds entry)")
+    ap.add_argument("--ceiling-seeds", type=int, nargs="+", default=None,
+                    help="measure the ceiling once per seed, each with its own training set and test problems, "
+                         "and report the mean and range (default: the config's seed only)")
     ap.add_argument("--model-seeds", type=int, nargs="+", default=None,
                     help="measure the model-only rungs with a dynamics model trained with each of these seeds "
                          "(dynamics.train.seed; trained on first use, cached) and report their mean and range "
@@ -425,8 +459,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     if bad:
         ap.error(f"unrecognized arguments: {' '.join(bad)}")
     # `--rungs a b key=value`: argparse hands the overrides to --rungs; they are overrides
-    args.overrides = [r for r in args.rungs if "=" in r] + list(args.overrides) + extra
+    # (the same for --ceiling-data's files)
+    files = [str(f) for f in args.ceiling_data or []]
+    args.overrides = [r for r in args.rungs + files if "=" in r] + list(args.overrides) + extra
     args.rungs = [r for r in args.rungs if "=" not in r]
+    if args.ceiling_data is not None:
+        args.ceiling_data = [Path(f) for f in files if "=" not in f]
     n_ceiling = args.ceiling_trajectories
     if n_ceiling is None:
         args.ceiling_trajectories = 0 if args.ceiling_data is not None else 128  # 0: all of the file's
@@ -437,15 +475,20 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.model_seeds is not None and (len(set(args.model_seeds)) != len(args.model_seeds)
                                          or min(args.model_seeds) < 0):
         raise SystemExit(f"--model-seeds {args.model_seeds}: allowed distinct integers >= 0")
-    if args.ceiling_data is not None and not args.ceiling_data.is_file():
-        raise SystemExit(f"--ceiling-data {args.ceiling_data}: no such file")
+    for f in args.ceiling_data or []:
+        if not f.is_file():
+            raise SystemExit(f"--ceiling-data {f}: no such file")
+    try:  # a bad seed list or a file count that does not match it: refused before any compute
+        _ceiling_runs(0, args.ceiling_seeds, args.ceiling_data, args.out)
+    except ValueError as err:
+        raise SystemExit(str(err)) from None
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     from .run import compose_config
 
     cfg = compose_config(args.overrides)
     result = run_ladder(cfg, args.out, args.rungs, args.thetas, args.hold, args.problems,
                         args.ceiling_trajectories, slots=args.slots, progress=bool(cfg.get("progress", True)),
-                        ceiling_data=args.ceiling_data, model_seeds=args.model_seeds)
+                        ceiling_data=args.ceiling_data, model_seeds=args.model_seeds, ceiling_seeds=args.ceiling_seeds)
     print(table(result))
     print(f"wrote {args.out / 'ladder.json'}")
 

@@ -38,6 +38,13 @@ def test_tiny_ladder_writes_every_rung(tmp_path, capsys):
     again = json.loads((tmp_path / "again" / "ladder.json").read_text())["ceiling"]
     assert again["train_transitions"] == ceil["train_transitions"]
     assert again["precondition_on_train"] == ceil["precondition_on_train"]
+    # --ceiling-seeds: one training set and test set per seed, each saved; the mean over them
+    main(["--out", str(tmp_path / "seeds"), "--rungs", "ceiling", "--problems", "2", "--ceiling-trajectories", "3",
+          "--ceiling-seeds", "0", "1", "--", *overrides])
+    many = json.loads((tmp_path / "seeds" / "ladder.json").read_text())["ceiling"]
+    assert many["seeds"] == [0, 1] and [r["seed"] for r in many["per_seed"]] == [0, 1]
+    assert many["success"] == pytest.approx((many["per_seed"][0]["success"] + many["per_seed"][1]["success"]) / 2)
+    assert all((tmp_path / "seeds" / f"ceiling_train_seed{s}.npz").is_file() for s in (0, 1))
 
 
 def test_subcell_offsets_cover_one_cell_without_repeats():
@@ -73,19 +80,19 @@ def test_table_marks_targets():
 def test_model_only_rungs_over_several_models_report_mean_range_and_each_model():
     """--model-seeds: one training draw moves the source rung by up to 0.4, so the rung reports the mean
     over models, the range, and every model's record; one model keeps the record it always had."""
-    from active.ladder import _over_models
+    from active.ladder import _mean_over
 
     def rec(seed, found, success, err):
         return {"model_seed": seed, "n": 30, "found": found, "success": success, "mean_abs_goal_error": err,
                 "categories": {"successful_pour": 1}, "spill_over_limit": 0, "plan_seconds": 10.0}
 
     rows = [rec(0, 0.9, 0.4, 0.06), rec(1, 0.8, 0.2, None)]
-    out = _over_models(rows)
+    out = _mean_over(rows, "model_seed")
     assert out["found"] == pytest.approx(0.85) and out["success"] == pytest.approx(0.3)
     assert out["success_range"] == [0.2, 0.4] and out["mean_abs_goal_error"] == 0.06  # None: no plan executed
     assert out["model_seeds"] == [0, 1] and out["per_model_seed"] == rows and out["plan_seconds"] == 20.0
     assert "(mean of 2 models: 0.20-0.40)" in table({"source_model_only": out})
-    one = _over_models([rec(3, 0.5, 0.1, 0.08)])
+    one = _mean_over([rec(3, 0.5, 0.1, 0.08)], "model_seed")
     assert "model_seed" not in one and one["success"] == 0.1 and "per_model_seed" not in one
 
 
@@ -105,3 +112,39 @@ def test_ceiling_subset_keeps_half_plans_half_random_actions():
         ceiling_subset(d, 9)
     with pytest.raises(SystemExit, match=r"--ceiling-trajectories 1: allowed >= 2"):
         main(["--out", "unused", "--ceiling-trajectories", "1"])
+
+
+def test_ceiling_over_several_training_sets_reports_mean_range_and_each_set():
+    """--ceiling-seeds: one training set moves the ceiling from 0.00 to 0.60, so the rung reports the mean
+    over sets (each with its own test problems), the range, and every set's record."""
+    from active.ladder import _mean_over
+
+    def rec(seed, found, success):
+        return {"seed": seed, "train_trajectories": 128, "n": 30, "found": found, "success": success,
+                "precondition_on_train": {}, "plan_seconds": 5.0}
+
+    rows = [rec(0, 0.1, 0.0), rec(1, 0.6, 0.47), rec(2, 0.2, 0.05)]
+    out = _mean_over(rows, "seed")
+    assert out["success"] == pytest.approx(0.52 / 3) and out["found"] == pytest.approx(0.3)
+    assert out["success_range"] == [0.0, 0.47] and out["seeds"] == [0, 1, 2] and out["per_seed"] == rows
+    assert "mean_abs_goal_error" not in out and out["plan_seconds"] == 15.0
+    assert "(mean of 3 training sets: 0.00-0.47)" in table({"ceiling": out})
+
+
+def test_ceiling_seeds_and_files_are_checked_before_compute(tmp_path):
+    from active.ladder import _ceiling_runs
+
+    runs = _ceiling_runs(0, [4, 5], None, tmp_path)
+    assert runs == [(4, tmp_path / "ceiling_train_seed4.npz", False), (5, tmp_path / "ceiling_train_seed5.npz", False)]
+    assert _ceiling_runs(7, None, None, tmp_path) == [(7, tmp_path / "ceiling_train.npz", False)]
+    assert _ceiling_runs(7, None, tmp_path / "a.npz", tmp_path) == [(7, tmp_path / "a.npz", True)]
+    files = [tmp_path / "a.npz", tmp_path / "b.npz"]
+    for f in files:
+        f.write_bytes(b"")
+    with pytest.raises(SystemExit, match=r"--ceiling-data has 2 file\(s\) but --ceiling-seeds \[0\] has 1"):
+        main(["--out", str(tmp_path / "x"), "--ceiling-data", *map(str, files)])
+    with pytest.raises(SystemExit, match=r"--ceiling-seeds \[1, 1\]: allowed distinct integers >= 0"):
+        main(["--out", str(tmp_path / "x"), "--ceiling-seeds", "1", "1"])
+    with pytest.raises(SystemExit, match=r"--ceiling-data .*missing.npz: no such file"):
+        main(["--out", str(tmp_path / "x"), "--ceiling-data", str(tmp_path / "missing.npz")])
+    assert not (tmp_path / "x").exists()
