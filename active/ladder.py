@@ -121,7 +121,6 @@ def execute_plans(executor, world_name: str, problems, plans) -> list:
 
 def model_only(world, world_name: str, pool, exp, executor, n: int, seed: int) -> dict:
     """Plans from the model alone (no MDE) for n problems, executed in ``world_name``."""
-    from sim.execute import CATEGORIES
     from sim.problems import sample_problems
 
     from .loop import derive_seed
@@ -132,12 +131,19 @@ def model_only(world, world_name: str, pool, exp, executor, n: int, seed: int) -
     t_plan = time.perf_counter() - t0
     res = execute_plans(executor, world_name, problems, plans)
     done = [r for r in res if r is not None]
-    errors = [abs(r.states[-1, 4] - r.goal) for r in done]
     return {"n": n, "found": len(done) / n, "success": sum(bool(r.goal_reached) for r in done) / n,
-            "categories": {c: sum(r.category == c for r in done) for c in CATEGORIES},
+            **outcomes(world, done), "plan_seconds": t_plan}
+
+
+def outcomes(world, done: list) -> dict:
+    """How the executed plans ended: trajectory categories, mean |final target fraction - goal|, and how
+    many spilled over the world's limit (what a found-but-failed plan did)."""
+    from sim.execute import CATEGORIES
+
+    errors = [abs(r.states[-1, 4] - r.goal) for r in done]
+    return {"categories": {c: sum(r.category == c for r in done) for c in CATEGORIES},
             "mean_abs_goal_error": float(np.mean(errors)) if errors else None,
-            "spill_over_limit": sum(r.final_spill > world.problems["max_spill"] for r in done),
-            "plan_seconds": t_plan}
+            "spill_over_limit": sum(r.final_spill > world.problems["max_spill"] for r in done)}
 
 
 def ceiling_dataset(world, pool, exp, executor, n_train: int, seed: int, batch: int = 32) -> dict:
@@ -249,7 +255,7 @@ def ceiling(world, dyn, pool, exp, executor, make_mde, n_train: int, n: int, see
             "label_below_d_max": float(np.mean(np.asarray(y) < exp.d_max)) if len(y) else None,
             "precondition_on_train": per_skill,
             "n": n, "found": len(done) / n, "success": sum(bool(r.goal_reached) for r in done) / n,
-            "fit_seconds": t_fit, "cv_seconds": t_cv, "plan_seconds": t_plan}
+            **outcomes(world, done), "fit_seconds": t_fit, "cv_seconds": t_cv, "plan_seconds": t_plan}
 
 
 def _admission(mu: np.ndarray, sd: np.ndarray, y: np.ndarray, exp, prefix: str) -> dict:

@@ -26,6 +26,7 @@ def test_tiny_ladder_writes_every_rung(tmp_path, capsys):
     ceil = res["ceiling"]
     assert ceil["train_trajectories"] == 5 and ceil["train_transitions"] >= 5 and ceil["n"] == 2
     assert 0.0 <= ceil["success"] <= ceil["found"] <= 1.0
+    assert sum(ceil["categories"].values()) == round(2 * ceil["found"])  # how the found plans ended
     for skill in ceil["precondition_on_train"].values():  # in sample and held out by trajectory
         assert 0.0 <= skill["in_sample_admitted"] <= 1.0 and 0.0 <= skill["heldout_admitted"] <= 1.0
     assert res["seconds"] > 0
