@@ -15,7 +15,6 @@ from warped_mde import WarpedGroupedMDE
 cfg = compose_config(["progress=false"]); w = WorldConfig.from_mapping(cfg["world"])
 dyn = dynamics.ContactAwareDynamics(dynamics.load_or_train(cfg["dynamics"], world_cfg=cfg["world"], progress=False), w)
 path, sizes = sys.argv[1], [int(k) for k in sys.argv[2:]]
-offsets = [float(c) for c in (sys.argv[-1].split(",") if False else [])]
 with np.load(path) as f:
     full = {k: f[k] for k in f.files}
 variants = {"plain": lambda: hydra.utils.instantiate(cfg["mde"])}
