@@ -126,9 +126,9 @@ def _changed_method_specs(c: Mapping[str, Any]) -> dict:
 
 #: experiment keys added after runs existed, with the value that changes nothing: left out of the digest
 #: so that a directory written before the key existed still resumes
-NEUTRAL_EXPERIMENT_SETTINGS = {"plan_goal_tol": None}
+NEUTRAL_EXPERIMENT_SETTINGS = {"plan_goal_tol": None, "plan_spill_limit": None}
 #: the same for the MDE's keys
-NEUTRAL_MDE_SETTINGS = {"lengthscale_max": None}
+NEUTRAL_MDE_SETTINGS = {"lengthscale_max": None, "latent_std_min": None}
 
 
 def config_digest(cfg: Mapping[str, Any]) -> str:
@@ -186,7 +186,7 @@ def build_planner_config(world: WorldConfig, planner: Mapping[str, Any], exp: Ex
 
     The keys of :data:`DERIVED_PLANNER_KEYS` must equal their source (the YAML interpolates them; an
     absent one is taken from the source); the goal band is ``experiment.plan_goal_tol`` or the world's
-    tolerance. Unknown keys and :data:`NOT_RUN_SETTINGS` are refused, naming the allowed keys.
+    tolerance, the spill limit ``experiment.plan_spill_limit`` or the world's ``max_spill``. Unknown keys and :data:`NOT_RUN_SETTINGS` are refused, naming the allowed keys.
     ``planner.workers`` is validated here but is not a :class:`PlannerConfig` field (it says where plans
     are computed, not what they are): see :func:`planner_workers`.
     """
@@ -210,6 +210,7 @@ def build_planner_config(world: WorldConfig, planner: Mapping[str, Any], exp: Ex
             raise ValueError(f"planner.{k} = {d[k]!r} differs from {src} = {want!r}: the planner's value is "
                              f"{src}'s (configs/planner/default.yaml interpolates it); set {src} instead")
     d["goal_tol"] = _plan_goal_tol(world, exp)
+    d["spill_limit"] = _plan_spill_limit(world, exp)
     d["move_lattice"] = float(world.skills.get("lattice", 0.0))
     return PlannerConfig.from_dict(d)
 
@@ -247,6 +248,17 @@ def _plan_goal_tol(world: WorldConfig, exp: ExperimentConfig) -> float:
         raise ValueError(f"experiment.plan_goal_tol = {exp.plan_goal_tol}: allowed (0, {tol}] "
                          f"(world.problems.tolerance; success is always judged with the world's tolerance)")
     return float(exp.plan_goal_tol)
+
+
+def _plan_spill_limit(world: WorldConfig, exp: ExperimentConfig) -> float:
+    """The planner's spill limit: the world's max_spill, or the experiment's smaller plan_spill_limit."""
+    limit = float(world.problems["max_spill"])
+    if exp.plan_spill_limit is None:
+        return limit
+    if exp.plan_spill_limit > limit:
+        raise ValueError(f"experiment.plan_spill_limit = {exp.plan_spill_limit}: allowed [0, {limit}] "
+                         f"(world.problems.max_spill; success is always judged with the world's limit)")
+    return float(exp.plan_spill_limit)
 
 
 def label_transitions(dynamics: Any, s: np.ndarray, a: np.ndarray, s_next: np.ndarray,

@@ -35,6 +35,13 @@ class MDEConfig:
     #: input over the GP's training points; None: unbounded. Keeps the log-noise GP from smoothing
     #: over a whole input's range (BENCHMARKS.md, session 15).
     lengthscale_max: float | None = None
+    #: Lower bound of the mean GP's latent std far from its data, in label units (an outputscale
+    #: bound of ``(latent_std_min / label std)^2``); None: unbounded. Why: the labels are z-scored,
+    #: so a GP that has seen only small deviations (or fits an outputscale near 0) predicts a narrow
+    #: std wherever it has no data, and its precondition then admits transitions it knows nothing
+    #: about (BENCHMARKS.md, sessions 16-17). With ``latent_std_min >= d_max / 2`` an unvisited
+    #: transition fails ``mu + 2 sigma < d_max`` as it does before any data.
+    latent_std_min: float | None = None
     #: Most-likely heteroscedastic GP (True) or a homoscedastic GP (False, for ablation).
     heteroscedastic: bool = True
     #: "none": raw (s, a) features as in the paper; "normalize": BoTorch ``Normalize`` with the
@@ -91,6 +98,8 @@ class MDEConfig:
             )
         if self.lengthscale_max is not None:
             _positive_float(self, "lengthscale_max")
+        if self.latent_std_min is not None:
+            _positive_float(self, "latent_std_min")
         _positive_float(self, "prior_std")
         _positive_float(self, "noise_floor")
         _positive_float(self, "jitter")

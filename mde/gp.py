@@ -389,11 +389,14 @@ def build_mean_gp(
     noise_floor: float,
     train_Yvar: Tensor | None = None,
     lengthscale_max: float | None = None,
+    latent_std_min: float | None = None,
 ) -> MDEGP:
     """Mean GP on deviations: z-scored labels, prior mean fixed at zero deviation.
 
     ``train_Yvar`` (label units) gives a fixed per-point noise (heteroscedastic step); without it
-    the noise is one learned constant (homoscedastic).
+    the noise is one learned constant (homoscedastic). ``latent_std_min`` (label units) bounds the
+    outputscale below by ``(latent_std_min / label std)^2``, so that the latent std far from the
+    data is at least that whatever the labels' spread (the bound is saved with the model's state).
     """
     Y = y.reshape(-1, 1)
     likelihood = None
@@ -418,6 +421,11 @@ def build_mean_gp(
     tf = model.outcome_transform
     model.mean_module.constant = (-tf.means / tf.stdvs).reshape(())
     model.mean_module.raw_constant.requires_grad_(False)
+    if latent_std_min is not None:
+        lower = (latent_std_min / float(tf.stdvs)) ** 2
+        kernel = model.covar_module
+        kernel.register_constraint("raw_outputscale", GreaterThan(lower))
+        kernel.outputscale = torch.tensor(max(1.0, 2.0 * lower), dtype=DTYPE)
     return model
 
 

@@ -212,7 +212,8 @@ class HeteroscedasticGPMDE:
             subset = torch.randperm(n, generator=gen)[: cfg.max_fit_points].sort().values
         Xf, yf = (X, y) if subset is None else (X[subset], y[subset])
         fit_kw = dict(maxiter=cfg.fit_maxiter, jitter=cfg.jitter, max_tries=cfg.max_jitter_tries)
-        build_kw = dict(nu=cfg.nu, bounds=bounds, noise_floor=cfg.noise_floor, lengthscale_max=cfg.lengthscale_max)
+        build_kw = dict(nu=cfg.nu, bounds=bounds, noise_floor=cfg.noise_floor, lengthscale_max=cfg.lengthscale_max,
+                        latent_std_min=cfg.latent_std_min)
 
         homo = build_mean_gp(Xf, yf, **build_kw)
         homo_ml = fit_gp(homo, **fit_kw)
@@ -428,6 +429,7 @@ class HeteroscedasticGPMDE:
             noise_floor=cfg.noise_floor,
             train_Yvar=state["train_Yvar"],
             lengthscale_max=cfg.lengthscale_max,
+            latent_std_min=cfg.latent_std_min,
         )
         if noise_model is not None:
             mean_model.set_noise_model(noise_model)  # a submodule: its state is in mean_state

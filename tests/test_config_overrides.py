@@ -53,6 +53,7 @@ EXPERIMENT_ALTERNATIVES = {
     "candidates": 3, "test_problems": 3, "random_actions_length": 3, "d_max": 0.05, "beta_train": [-1.0, 0.5],
     "beta_switch_iteration": 2, "beta_test": 1.5, "calibration_trajectories": 3, "planner_propagation_budget": 1234,
     "planner_time_budget": 5.0, "known_obstacles": False, "refine_steps": 2, "refine_lr": 0.01, "plan_goal_tol": 0.03,
+    "plan_spill_limit": 0.01,
 }
 
 
@@ -173,6 +174,10 @@ def test_documented_overrides_arrive():
     assert settings(["planner.stuck_move=0.01"])[2].stuck_move == 0.01  # README: known static geometry
     assert settings(["experiment.plan_goal_tol=0.02"])[2].goal_tol == 0.02  # BENCHMARKS: ladder rungs
     assert settings([])[2].goal_tol == 0.05  # null: the world's tolerance
+    assert settings(["experiment.plan_spill_limit=0.01"])[2].spill_limit == 0.01  # BENCHMARKS: session 17
+    assert settings([])[2].spill_limit == 0.02  # null: the world's max_spill
+    with pytest.raises(ValueError, match=r"experiment.plan_spill_limit = 0.03: allowed \[0, 0.02\]"):
+        settings(["experiment.plan_spill_limit=0.03"])
     assert settings(["experiment.planner_propagation_budget=20000"])[2].propagation_budget == 20000
     exp, world, pc, _ = settings(["world=fine", "world.sim.arch=gpu", "experiment=paper", "method=active_balanced"])
     assert world.sim["dx"] == 0.005 and world.sim["arch"] == "gpu" and exp.name == "paper"
@@ -191,6 +196,7 @@ def test_documented_overrides_arrive():
     from hydra.utils import instantiate  # README: bound every MDE lengthscale
 
     assert instantiate(compose_config(["mde.lengthscale_max=2"])["mde"]).config.lengthscale_max == 2.0
+    assert instantiate(compose_config(["mde.latent_std_min=0.05"])["mde"]).config.latent_std_min == 0.05
 
 
 def test_the_acquisition_group_keeps_the_digests_of_runs_written_before_it():
@@ -261,14 +267,15 @@ OLD_TINY_EXPERIMENT = {
 }
 
 
-def test_an_mde_key_added_later_keeps_the_digest_at_its_off_value():
-    """mde.lengthscale_max (session 15): null is the behaviour before it existed, so a run directory written
-    then keeps its digest; any bound is another configuration."""
+@pytest.mark.parametrize("key, value", [("lengthscale_max", 2), ("latent_std_min", 0.05)])
+def test_an_mde_key_added_later_keeps_the_digest_at_its_off_value(key, value):
+    """mde.lengthscale_max (session 15), mde.latent_std_min (session 17): null is the behaviour before the
+    key existed, so a run directory written then keeps its digest; any bound is another configuration."""
     new = compose_config(["experiment=tiny"])
-    assert new["mde"]["lengthscale_max"] is None
-    old = {**new, "mde": {k: v for k, v in new["mde"].items() if k != "lengthscale_max"}}
+    assert new["mde"][key] is None
+    old = {**new, "mde": {k: v for k, v in new["mde"].items() if k != key}}
     assert config_digest(old) == config_digest(new)
-    assert config_digest(compose_config(["experiment=tiny", "mde.lengthscale_max=2"])) != config_digest(new)
+    assert config_digest(compose_config(["experiment=tiny", f"mde.{key}={value}"])) != config_digest(new)
 
 
 def test_a_run_directory_recorded_before_the_derived_keys_still_resumes():

@@ -26,6 +26,7 @@ def _data(n: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
         {"max_fit_points": 40},
         {"predict_dtype": "float64"},
         {"lengthscale_max": 2.0, "max_fit_points": 40},  # the bounds come back with the state
+        {"latent_std_min": 5.0, "max_fit_points": 40},  # an outputscale bound (binding here) too
     ],
 )
 def test_round_trip_predicts_identically(tmp_path, config):

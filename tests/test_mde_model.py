@@ -274,3 +274,30 @@ def test_lengthscales_stay_under_their_bound():
     torch.testing.assert_close(post.variance.reshape(-1).sqrt(), std_pred, rtol=1e-6, atol=1e-8)
     with pytest.raises(ValueError, match=r"lengthscale_max must be a finite number > 0, got -1"):
         HeteroscedasticGPMDE(lengthscale_max=-1.0)
+
+
+def test_latent_std_min_keeps_unvisited_inputs_unknown():
+    """latent_std_min: a GP that has seen only small deviations (z-scored labels of std 0.003) is narrow
+    far from its data without the bound, so ``mu + 2 sigma < d_max`` would admit inputs it never saw;
+    with the bound its latent std there is the bound (label units), near the data it hardly moves."""
+    g = torch.Generator().manual_seed(0)
+    X = torch.rand(40, 3, generator=g, dtype=torch.float64)
+    y = 0.02 + 0.01 * torch.rand(40, generator=g, dtype=torch.float64)  # benign labels only
+    far = torch.tensor([[1e3, -1e3, 1e3]], dtype=torch.float64)
+    latent_std = lambda m, Xq: m.model.posterior(Xq.unsqueeze(1)).variance.reshape(-1).sqrt()  # noqa: E731
+    free = HeteroscedasticGPMDE(**T1).fit(X, y)
+    floored = HeteroscedasticGPMDE(latent_std_min=0.05, **T1).fit(X, y)
+    assert float(latent_std(free, far)) < 0.035  # mu + 2 sigma < d_max = 0.07 where there is no data
+    assert float(latent_std(floored, far)) == pytest.approx(0.05, rel=1e-6)
+    mean, std = floored.predict(far)
+    assert float(mean + 2 * std) > 0.07
+    near_free, near_floored = free.predict(X[:5]), floored.predict(X[:5])
+    torch.testing.assert_close(near_floored[0], near_free[0], rtol=0, atol=2e-3)
+    # labels of a wide spread: the bound is far below the fitted outputscale and does not bind (the
+    # optimiser's path through the bound's transform differs, so equal to the optimiser's tolerance)
+    wide = y * 100.0
+    a = HeteroscedasticGPMDE(**T1).fit(X, wide).predict(far)
+    b = HeteroscedasticGPMDE(latent_std_min=0.05, **T1).fit(X, wide).predict(far)
+    torch.testing.assert_close(a, b, rtol=1e-3, atol=1e-9)
+    with pytest.raises(ValueError, match=r"latent_std_min must be a finite number > 0, got 0"):
+        HeteroscedasticGPMDE(latent_std_min=0)
