@@ -176,6 +176,8 @@ def test_documented_overrides_arrive():
     assert settings([])[2].goal_tol == 0.05  # null: the world's tolerance
     assert settings(["experiment.plan_spill_limit=0.01"])[2].spill_limit == 0.01  # BENCHMARKS: session 17
     assert settings([])[2].spill_limit == 0.02  # null: the world's max_spill
+    leaf = settings(["world.plant.leaves.0.center=[0.065,0.26]"])[1].plant["leaves"][0]  # README: a higher leaf
+    assert list(leaf["center"]) == [0.065, 0.26] and list(leaf["radii"]) == [0.065, 0.007]
     with pytest.raises(ValueError, match=r"experiment.plan_spill_limit = 0.03: allowed \[0, 0.02\]"):
         settings(["experiment.plan_spill_limit=0.03"])
     assert settings(["experiment.planner_propagation_budget=20000"])[2].propagation_budget == 20000
