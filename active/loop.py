@@ -209,8 +209,8 @@ def build_planner_config(world: WorldConfig, planner: Mapping[str, Any], exp: Ex
         elif _plain(d[k]) != _plain(want):
             raise ValueError(f"planner.{k} = {d[k]!r} differs from {src} = {want!r}: the planner's value is "
                              f"{src}'s (configs/planner/default.yaml interpolates it); set {src} instead")
-    d["goal_tol"] = _plan_goal_tol(world, exp)
-    d["spill_limit"] = _plan_spill_limit(world, exp)
+    d["goal_tol"] = _planner_bound(world, exp, "plan_goal_tol", "tolerance", "(")
+    d["spill_limit"] = _planner_bound(world, exp, "plan_spill_limit", "max_spill", "[")
     d["move_lattice"] = float(world.skills.get("lattice", 0.0))
     return PlannerConfig.from_dict(d)
 
@@ -239,26 +239,18 @@ def planner_workers(planner: Mapping[str, Any]) -> int:
     return resolve_workers(planner.get("workers", "auto"), "planner.workers")
 
 
-def _plan_goal_tol(world: WorldConfig, exp: ExperimentConfig) -> float:
-    """The planner's goal band: the world's tolerance, or the experiment's narrower plan_goal_tol."""
-    tol = float(world.problems["tolerance"])
-    if exp.plan_goal_tol is None:
-        return tol
-    if exp.plan_goal_tol > tol:
-        raise ValueError(f"experiment.plan_goal_tol = {exp.plan_goal_tol}: allowed (0, {tol}] "
-                         f"(world.problems.tolerance; success is always judged with the world's tolerance)")
-    return float(exp.plan_goal_tol)
-
-
-def _plan_spill_limit(world: WorldConfig, exp: ExperimentConfig) -> float:
-    """The planner's spill limit: the world's max_spill, or the experiment's smaller plan_spill_limit."""
-    limit = float(world.problems["max_spill"])
-    if exp.plan_spill_limit is None:
+def _planner_bound(world: WorldConfig, exp: ExperimentConfig, exp_key: str, world_key: str, lower: str) -> float:
+    """The planner's value of a bound the world sets (goal band, spill limit): ``world.problems[world_key]``, or
+    the experiment's narrower ``exp_key``; success is always judged with the world's value. ``lower`` is the
+    allowed range's opening bracket, for the error message."""
+    limit = float(world.problems[world_key])
+    value = getattr(exp, exp_key)
+    if value is None:
         return limit
-    if exp.plan_spill_limit > limit:
-        raise ValueError(f"experiment.plan_spill_limit = {exp.plan_spill_limit}: allowed [0, {limit}] "
-                         f"(world.problems.max_spill; success is always judged with the world's limit)")
-    return float(exp.plan_spill_limit)
+    if value > limit:
+        raise ValueError(f"experiment.{exp_key} = {value}: allowed {lower}0, {limit}] "
+                         f"(world.problems.{world_key}; success is always judged with the world's value)")
+    return float(value)
 
 
 def label_transitions(dynamics: Any, s: np.ndarray, a: np.ndarray, s_next: np.ndarray,
