@@ -254,7 +254,7 @@ class SequenceSampler:
             sched = plan_schedule(self.wcfg, np.array([start[0], start[1], 0.0]), acts, obst, self.boundary)
             ends = np.asarray(sched.action_end) * h
             n_fit = max(1, int(np.sum(ends <= self.data.max_sim_seconds)))  # actions within the time budget
-            stuck_in_prefix = sched.stuck and sched.executed <= n_fit
+            stuck_in_prefix = any(i < n_fit for i in sched.blocked)
             acts = acts[:min(n_fit, sched.executed)]
             if not stuck_in_prefix or keep_all_stuck:
                 return start, acts

@@ -207,7 +207,7 @@ class PouringExecutor:
         for b in range(B):
             states = np.stack(obs[b])
             n_exec = scheds[b].executed
-            steps = [Step(states[t], acts[b][t], states[t + 1], stuck=scheds[b].stuck and t == n_exec - 1)
+            steps = [Step(states[t], acts[b][t], states[t + 1], stuck=t in scheds[b].blocked)
                      for t in range(n_exec)]
             g = None if goals is None else float(goals[b])
             reached = None if g is None else bool(goal_reached(states[-1], g, cfg.problems["tolerance"], max_spill)

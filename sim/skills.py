@@ -6,7 +6,9 @@ tilts the cup counter-clockwise about its pouring lip to theta, holds, and retur
 skill ends with a settle period. The cup is kinematic and the obstacles are static, so each
 environment's whole pose-versus-time schedule is computed before simulating: if the cup would enter
 an obstacle (plant, target cup, tank wall), it stops at the last contact-free pose and stays there
-("stuck"); the rest of that trajectory is not executed.
+("stuck"); the rest of that trajectory is not executed. With ``world.plant.on_contact: hold`` a cup
+blocked by the plant (foliage, not a rigid structure) stays at the leaf only for the rest of that
+action, and the trajectory goes on from there: the next actions, and their labels, are observed.
 """
 
 from __future__ import annotations
@@ -170,8 +172,9 @@ class Schedule:
     poses: np.ndarray  # (K + 1, 3), pose at tick k (time k * control_dt)
     action_end: list[int] = field(default_factory=list)  # tick at which action i's settle ends
     executed: int = 0  # actions executed (the last one may be stuck)
-    stuck: bool = False
-    stuck_on: str | None = None  # name of the obstacle body ("plant", "target") or "tank"
+    stuck: bool = False  # some action was blocked (it ended the trajectory unless it was held by the plant)
+    stuck_on: str | None = None  # name of the first blocking obstacle body ("plant", "target") or "tank"
+    blocked: list[int] = field(default_factory=list)  # indices of the actions that were blocked
 
 
 def start_overlap(obstacles: "Obstacles", boundary: np.ndarray, pose: np.ndarray) -> str | None:
@@ -187,14 +190,16 @@ def start_overlap(obstacles: "Obstacles", boundary: np.ndarray, pose: np.ndarray
 
 def plan_schedule(cfg: WorldConfig, start: np.ndarray, actions: np.ndarray, obstacles: Obstacles,
                   boundary: np.ndarray) -> Schedule:
-    """Pose-versus-tick schedule of a whole action sequence, stopping at the first contact."""
+    """Pose-versus-tick schedule of a whole action sequence, stopping at the first contact (the plant's
+    contacts only block their action when ``cfg.plant_on_contact == "hold"``)."""
     h = cfg.control_dt
     sk = cfg.skills
     settle = int(round(sk["settle"] / h))
     poses = [np.asarray(start, float)]
     sched = Schedule(poses=np.zeros((1, 3)))
     lip = cfg.controlled_cup.lip
-    for a in actions:
+    hold_plant = cfg.plant_on_contact == "hold"
+    for i, a in enumerate(actions):
         p0 = poses[-1]
         kind = int(a[0])
         if kind == MOVE:
@@ -214,18 +219,22 @@ def plan_schedule(cfg: WorldConfig, start: np.ndarray, actions: np.ndarray, obst
         d, idx = d.reshape(len(seg), -1), idx.reshape(len(seg), -1)
         hit = np.flatnonzero(d.min(1) < CONTACT_MARGIN)
         sched.executed += 1
+        ends = False
         if len(hit):
             k = int(hit[0])
             j = int(np.argmin(d[k]))
             who = int(idx[k, j])
+            name = "tank" if who < 0 else obstacles.bodies[who].name
+            sched.stuck_on = sched.stuck_on or name
             sched.stuck = True
-            sched.stuck_on = "tank" if who < 0 else obstacles.bodies[who].name
+            sched.blocked.append(i)
+            ends = not (hold_plant and name == "plant")
             stop = seg[k - 1] if k > 0 else p0
             seg = np.concatenate([seg[:k], np.repeat(stop[None], len(seg) - k, 0)])
         poses.extend(seg)
         poses.extend([poses[-1]] * settle)
         sched.action_end.append(len(poses) - 1)
-        if sched.stuck:
+        if ends:
             break
     sched.poses = np.asarray(poses)
     return sched

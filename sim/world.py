@@ -44,6 +44,10 @@ class CupConfig:
         return np.array([-self.inner_width / 2 - self.wall, self.inner_height])
 
 
+#: allowed values of ``world.plant.on_contact``
+PLANT_CONTACT = ("stop", "hold")
+
+
 @dataclass
 class WorldConfig:
     """Everything about the worlds, with units; built from ``configs/world/default.yaml``."""
@@ -94,8 +98,16 @@ class WorldConfig:
         if not (isinstance(lat, (int, float)) and 0 <= lat <= 0.05):
             raise ConfigError(f"world.skills.lattice = {lat!r}: allowed 0 (continuous positions) or a spacing "
                               f"in (0, 0.05] m")
+        if self.plant_on_contact not in PLANT_CONTACT:
+            raise ConfigError(f"world.plant.on_contact = {self.plant_on_contact!r}: allowed {', '.join(PLANT_CONTACT)}")
         if not 1 <= int(self.skills["max_actions"]) <= 6:
             raise ConfigError(f"world.skills.max_actions = {self.skills['max_actions']}: allowed 1..6")
+
+    @property
+    def plant_on_contact(self) -> str:
+        """What a cup blocked by the plant does: "stop" ends the trajectory there, "hold" keeps the cup at
+        the leaf for the rest of that action and goes on with the next (see :func:`sim.skills.plan_schedule`)."""
+        return self.plant.get("on_contact", "stop")
 
     # ------------------------------------------------------------------ geometry
     @property

@@ -165,6 +165,32 @@ def test_a_lattice_puts_starts_and_move_targets_on_it(cfg):
         WorldConfig.from_mapping({**dataclasses.asdict(cfg), "skills": {**cfg.skills, "lattice": -0.01}})
 
 
+def test_plant_on_contact_hold_blocks_only_that_action(cfg):
+    """``plant.on_contact: hold``: a move blocked by a leaf stops there and the trajectory goes on from the
+    blocked pose; "stop" (and any rigid obstacle under "hold") ends it. Schedules only, no simulation."""
+    import dataclasses
+
+    from sim.skills import Obstacles, cup_boundary, plan_schedule
+
+    assert cfg.plant_on_contact == "stop"
+    hold = dataclasses.replace(cfg, plant={**cfg.plant, "on_contact": "hold"})
+    obst = Obstacles(cfg.obstacle_bodies("target"), np.full(2, 0.03), np.full(2, 0.57))
+    start, acts = np.array([0.42, 0.24, 0.0]), np.array([move(0.15, 0.24), move(0.42, 0.24), pour(0.5, 0.2)])
+    stop = plan_schedule(cfg, start, acts, obst, cup_boundary(cfg))
+    held = plan_schedule(hold, start, acts, obst, cup_boundary(cfg))
+    assert (stop.executed, stop.blocked, stop.stuck_on) == (1, [0], "plant")
+    assert (held.executed, held.blocked, held.stuck_on, held.stuck) == (3, [0], "plant", True)
+    k = held.action_end[0]
+    np.testing.assert_array_equal(held.poses[:k + 1], stop.poses)  # the same blocked move
+    assert held.poses[k, 0] > 0.2  # held at the leaf, short of x = 0.15
+    np.testing.assert_allclose(held.poses[held.action_end[1], :2], [0.42, 0.24])  # then the next move runs
+    rigid = plan_schedule(hold, np.array([0.42, 0.20, 0.0]), np.array([move(0.22, 0.07), pour(0.5, 0.2)]), obst,
+                          cup_boundary(cfg))
+    assert (rigid.executed, rigid.blocked, rigid.stuck_on) == (1, [0], "target")  # the target cup still ends it
+    with pytest.raises(ValueError, match=r"world.plant.on_contact = 'bend': allowed stop, hold"):
+        WorldConfig.from_mapping({**dataclasses.asdict(cfg), "plant": {**cfg.plant, "on_contact": "bend"}})
+
+
 @pytest.mark.parametrize("kwargs,match", [
     ({"world": "moon"}, "world = 'moon'"),
     ({"actions": [[pour(3.0, 0.5)]]}, r"pour.theta = 3 outside its range \[0, 2.2\]"),
