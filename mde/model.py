@@ -179,6 +179,8 @@ class HeteroscedasticGPMDE:
         """
         X = _as_matrix(X, "X").to(DTYPE)
         y = _as_labels(y, X.shape[0])
+        if self._config.label_max is not None:  # the labels as fitted (and as train_y reports them)
+            y = y.clamp(max=self._config.label_max)
         if self._n_features is not None and self._fitted is not None and X.shape[1] != self._n_features:
             warnings.warn(
                 f"refitting with d={X.shape[1]} features; previous fit had d={self._n_features}",

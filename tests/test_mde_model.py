@@ -283,7 +283,7 @@ def test_latent_std_min_keeps_unvisited_inputs_unknown():
     g = torch.Generator().manual_seed(0)
     X = torch.rand(40, 3, generator=g, dtype=torch.float64)
     y = 0.02 + 0.01 * torch.rand(40, generator=g, dtype=torch.float64)  # benign labels only
-    far = torch.tensor([[1e3, -1e3, 1e3]], dtype=torch.float64)
+    far = torch.tensor([[1e8, -1e8, 1e8]], dtype=torch.float64)  # beyond any lengthscale (<= ~1e5, RAW_UPPER)
     latent_std = lambda m, Xq: m.model.posterior(Xq.unsqueeze(1)).variance.reshape(-1).sqrt()  # noqa: E731
     free = HeteroscedasticGPMDE(**T1).fit(X, y)
     floored = HeteroscedasticGPMDE(latent_std_min=0.05, **T1).fit(X, y)
@@ -301,3 +301,24 @@ def test_latent_std_min_keeps_unvisited_inputs_unknown():
     torch.testing.assert_close(a, b, rtol=1e-3, atol=1e-9)
     with pytest.raises(ValueError, match=r"latent_std_min must be a finite number > 0, got 0"):
         HeteroscedasticGPMDE(latent_std_min=0)
+
+
+def test_label_max_fits_large_deviations_as_that_value():
+    """label_max: labels above it are fitted as it (what train_y reports); a fit without labels above it
+    is unchanged; a large deviation stays far above d_max in the prediction."""
+    g = torch.Generator().manual_seed(1)
+    X = torch.rand(40, 3, generator=g, dtype=torch.float64)
+    y = 0.02 + 0.01 * torch.rand(40, generator=g, dtype=torch.float64)
+    y_spill = y.clone()
+    y_spill[X[:, 0] > 0.8] = 1.8  # whole spills in one corner
+    capped = HeteroscedasticGPMDE(label_max=0.3, **T1).fit(X, y_spill)
+    assert float(capped.train_y.max()) == 0.3 and float(capped.train_y.min()) == float(y.min())
+    ref = HeteroscedasticGPMDE(**T1).fit(X, y_spill.clamp(max=0.3))
+    torch.testing.assert_close(capped.predict(X), ref.predict(X))
+    corner = X[X[:, 0] > 0.8]
+    mean, std = capped.predict(corner)
+    assert (mean > 0.2).all()
+    same = HeteroscedasticGPMDE(label_max=0.3, **T1).fit(X, y).predict(X)
+    torch.testing.assert_close(same, HeteroscedasticGPMDE(**T1).fit(X, y).predict(X))
+    with pytest.raises(ValueError, match=r"label_max must be a finite number > 0, got -1"):
+        HeteroscedasticGPMDE(label_max=-1)
