@@ -328,10 +328,12 @@ def generate_transitions(data: DataConfig, world: str = "source", n_batches: int
         _add_counts(counts, c)
         bar.set_postfix(transitions=sum(len(p) for p in parts), unstable=counts["unstable"])
     bar.close()
+    from sim.backend import cpu_fingerprint
+
     out = Transitions.concat(parts)
     out.meta = {**(meta or {}), "world": world, "seed": seed, "n_batches": n_batches, "batch_size": B,
                 "counts": {**counts, **out.summary()}, "wall_seconds": time.perf_counter() - t0,
-                "data_config": _plain_data(data)}
+                "data_config": _plain_data(data), "cpu": cpu_fingerprint()}
     out.validate()
     return out
 

@@ -45,3 +45,24 @@ def init_taichi(arch: str = "cpu", *, debug: bool = False, kernel_profiler: bool
 
 def current_arch() -> str | None:
     return _current
+
+
+def cpu_fingerprint() -> str:
+    """The machine, its vector instruction sets and the numpy and Taichi versions: what decides the CPU
+    solver's floating-point results.
+
+    Why: Taichi compiles the solver with fast math for the host CPU, so the lane width (AVX2 or
+    AVX-512) and FMA change the rounding of reductions, and numpy's vectorised sin / cos (the cup's
+    schedule) differ between instruction sets and releases; results are bit-for-bit only between
+    machines with the same fingerprint (the shipped dataset records the one that made it)."""
+    import platform
+
+    import numpy as np
+
+    try:
+        from numpy._core._multiarray_umath import __cpu_features__ as feats
+    except ImportError:  # numpy < 2
+        from numpy.core._multiarray_umath import __cpu_features__ as feats
+    keep = ("AVX", "AVX2", "FMA3", "AVX512F", "AVX512_SKX", "ASIMD", "SVE")
+    return " ".join([platform.machine()] + [k for k in keep if feats.get(k)]
+                    + [f"numpy {np.__version__}", "taichi " + ".".join(map(str, ti.__version__))])
