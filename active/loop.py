@@ -128,7 +128,8 @@ def _changed_method_specs(c: Mapping[str, Any]) -> dict:
 #: so that a directory written before the key existed still resumes
 NEUTRAL_EXPERIMENT_SETTINGS = {"plan_goal_tol": None, "plan_spill_limit": None}
 #: the same for the MDE's keys
-NEUTRAL_MDE_SETTINGS = {"lengthscale_max": None, "latent_std_min": None, "label_max": None}
+NEUTRAL_MDE_SETTINGS = {"lengthscale_max": None, "latent_std_min": None, "label_max": None,
+                        "noise_lengthscale_max": None}
 
 
 def config_digest(cfg: Mapping[str, Any]) -> str:

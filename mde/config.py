@@ -35,6 +35,10 @@ class MDEConfig:
     #: input over the GP's training points; None: unbounded. Keeps the log-noise GP from smoothing
     #: over a whole input's range (BENCHMARKS.md, session 15).
     lengthscale_max: float | None = None
+    #: The same bound for the log-noise GP alone (None: ``lengthscale_max``). Why: a noise GP that
+    #: smooths over the whole pour region puts the scatter of its spills on the safe pours between
+    #: them, while a mean GP bounded as tightly interpolates its data (BENCHMARKS.md, session 18).
+    noise_lengthscale_max: float | None = None
     #: Lower bound of the mean GP's latent std far from its data, in label units (an outputscale
     #: bound of ``(latent_std_min / label std)^2``); None: unbounded. Why: the labels are z-scored,
     #: so a GP that has seen only small deviations (or fits an outputscale near 0) predicts a narrow
@@ -104,6 +108,8 @@ class MDEConfig:
             )
         if self.lengthscale_max is not None:
             _positive_float(self, "lengthscale_max")
+        if self.noise_lengthscale_max is not None:
+            _positive_float(self, "noise_lengthscale_max")
         if self.latent_std_min is not None:
             _positive_float(self, "latent_std_min")
         if self.label_max is not None:
@@ -123,6 +129,11 @@ class MDEConfig:
             _int_at_least(self, "group_column", 0)
         if 0 < self.max_fit_points < 2:
             raise ValueError(f"max_fit_points must be 0 (all points) or >= 2, got {self.max_fit_points!r}")
+
+    @property
+    def noise_lengthscale_bound(self) -> float | None:
+        """The lengthscale bound the log-noise GP is built with."""
+        return self.lengthscale_max if self.noise_lengthscale_max is None else self.noise_lengthscale_max
 
     # -- construction helpers ------------------------------------------------------------------
     @classmethod

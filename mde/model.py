@@ -254,7 +254,7 @@ class HeteroscedasticGPMDE:
             try:
                 log_noise = _empirical_log_noise(current, cfg) + math.log(sigma2)  # label units
                 noise_gp = build_noise_gp(X, log_noise, nu=cfg.nu, bounds=build_kw["bounds"],
-                                          lengthscale_max=cfg.lengthscale_max)
+                                          lengthscale_max=cfg.noise_lengthscale_bound)
                 if prev_noise is not None:  # warm start: later iterations move little
                     noise_gp.covar_module.load_state_dict(prev_noise.covar_module.state_dict())
                     noise_gp.likelihood.load_state_dict(prev_noise.likelihood.state_dict())
@@ -422,7 +422,7 @@ class HeteroscedasticGPMDE:
         noise_model = None
         if state["noise_X"] is not None:
             noise_model = build_noise_gp(state["noise_X"], state["noise_Y"], nu=cfg.nu, bounds=bounds,
-                                         lengthscale_max=cfg.lengthscale_max)
+                                         lengthscale_max=cfg.noise_lengthscale_bound)
         mean_model = build_mean_gp(  # the lengthscale bounds come back with the saved state
             state["X"],
             state["y"],

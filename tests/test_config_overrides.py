@@ -269,9 +269,10 @@ OLD_TINY_EXPERIMENT = {
 }
 
 
-@pytest.mark.parametrize("key, value", [("lengthscale_max", 2), ("latent_std_min", 0.05), ("label_max", 0.3)])
+@pytest.mark.parametrize("key, value", [("lengthscale_max", 2), ("latent_std_min", 0.05), ("label_max", 0.3),
+                                        ("noise_lengthscale_max", 2)])
 def test_an_mde_key_added_later_keeps_the_digest_at_its_off_value(key, value):
-    """mde.lengthscale_max (session 15), mde.latent_std_min (session 17), mde.label_max (session 18): null is the behaviour before the
+    """mde.lengthscale_max (session 15), mde.latent_std_min (session 17), mde.label_max and mde.noise_lengthscale_max (session 18): null is the behaviour before the
     key existed, so a run directory written then keeps its digest; any bound is another configuration."""
     new = compose_config(["experiment=tiny"])
     assert new["mde"][key] is None

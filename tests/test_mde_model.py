@@ -276,6 +276,22 @@ def test_lengthscales_stay_under_their_bound():
         HeteroscedasticGPMDE(lengthscale_max=-1.0)
 
 
+def test_noise_lengthscale_max_bounds_the_noise_gp_alone():
+    """noise_lengthscale_max: the noise GP's lengthscales under that bound, the mean GP's built as without it
+    (unbounded here); saved and loaded with the model."""
+    X, y = _data_4d(120, seed=5)
+    X = X * torch.tensor([1.0, 10.0, 0.1, 100.0])
+    std = X.std(dim=0)
+    ls = lambda gp: gp.covar_module.base_kernel.lengthscale.detach().reshape(-1)  # noqa: E731
+    m = HeteroscedasticGPMDE(max_iters=2, noise_lengthscale_max=2.0, **T1).fit(X, y)
+    assert ((ls(m.noise_model) / std) <= 2.0 * (1 + 1e-6)).all()  # the Interval transform's rounding
+    assert (ls(m.model) / std).max() > 2.0  # the mean GP is not bounded
+    assert HeteroscedasticGPMDE(lengthscale_max=3.0).config.noise_lengthscale_bound == 3.0
+    assert HeteroscedasticGPMDE(lengthscale_max=3.0, noise_lengthscale_max=1.0).config.noise_lengthscale_bound == 1.0
+    with pytest.raises(ValueError, match=r"noise_lengthscale_max must be a finite number > 0, got 0"):
+        HeteroscedasticGPMDE(noise_lengthscale_max=0)
+
+
 def test_latent_std_min_keeps_unvisited_inputs_unknown():
     """latent_std_min: a GP that has seen only small deviations (z-scored labels of std 0.003) is narrow
     far from its data without the bound, so ``mu + 2 sigma < d_max`` would admit inputs it never saw;
