@@ -172,9 +172,13 @@ class Schedule:
     poses: np.ndarray  # (K + 1, 3), pose at tick k (time k * control_dt)
     action_end: list[int] = field(default_factory=list)  # tick at which action i's settle ends
     executed: int = 0  # actions executed (the last one may be stuck)
-    stuck: bool = False  # some action was blocked (it ended the trajectory unless it was held by the plant)
     stuck_on: str | None = None  # name of the first blocking obstacle body ("plant", "target") or "tank"
     blocked: list[int] = field(default_factory=list)  # indices of the actions that were blocked
+
+    @property
+    def stuck(self) -> bool:
+        """Some action was blocked (it ended the trajectory unless the plant held it)."""
+        return bool(self.blocked)
 
 
 def start_overlap(obstacles: "Obstacles", boundary: np.ndarray, pose: np.ndarray) -> str | None:
@@ -226,7 +230,6 @@ def plan_schedule(cfg: WorldConfig, start: np.ndarray, actions: np.ndarray, obst
             who = int(idx[k, j])
             name = "tank" if who < 0 else obstacles.bodies[who].name
             sched.stuck_on = sched.stuck_on or name
-            sched.stuck = True
             sched.blocked.append(i)
             ends = not (hold_plant and name == "plant")
             stop = seg[k - 1] if k > 0 else p0

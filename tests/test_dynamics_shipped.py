@@ -50,11 +50,11 @@ def test_first_shard_regenerates_bit_for_bit():
     assert rows.sum() == len(again)
     for k in ("a", "traj", "step", "stuck"):
         np.testing.assert_array_equal(getattr(again, k), getattr(ds, k)[rows], err_msg=k)
-    assert again.meta["cpu"] == cpu_fingerprint()
-    made_on = ds.meta.get("cpu")
-    if made_on != cpu_fingerprint():
+    here, made_on = cpu_fingerprint(), ds.meta.get("cpu")
+    assert again.meta["cpu"] == here
+    if made_on != here:
         pytest.skip(f"simulated states are compared bit for bit only on a CPU (and numpy, Taichi) like the one "
-                    f"that made the shipped file ({made_on or 'not recorded'}); this one: {cpu_fingerprint()}")
+                    f"that made the shipped file ({made_on or 'not recorded'}); this one: {here}")
     for k in ("s", "s_next"):
         np.testing.assert_array_equal(getattr(again, k), getattr(ds, k)[rows], err_msg=k)
 

@@ -19,10 +19,11 @@ dyn = dynamics.ContactAwareDynamics(dynamics.load_or_train(cfg["dynamics"], worl
 d = dict(np.load(sys.argv[1]))
 s, a, s2 = d["s"], d["a"], d["s_next"]
 y = label_transitions(dyn, s, a, s2, world.distance_weights)
-mde = instantiate(dict(cfg["mde"]), _convert_="all").fit(torch.as_tensor(features(s, a)), torch.as_tensor(y))
-mu, sd = (v.double().numpy() for v in mde.predict(torch.as_tensor(features(s, a))))
+X = torch.as_tensor(features(s, a))
+mde = instantiate(dict(cfg["mde"]), _convert_="all").fit(X, torch.as_tensor(y))
+mu, sd = (v.double().numpy() for v in mde.predict(X))
 ok = mu + 2 * sd < 0.07
-nz = mde.noise_std(torch.as_tensor(features(s, a))).double().numpy()
+nz = mde.noise_std(X).double().numpy()
 pour = a[:, 0] == 1
 into = pour & (s2[:, 4] - s[:, 4] > 0.1) & (1 - s2[:, 3] - s2[:, 4] <= 0.02)
 print(f"pours into the target cup: {into.sum()} of {pour.sum()} pours; admitted {ok[into].sum()}")
