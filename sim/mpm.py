@@ -113,6 +113,8 @@ class MPMSolver:
         self._tree = fb.finalize()
         ti.sync()  # materialise now: Taichi validates pending fields lazily, and a closed solver's would fail
         self._body_state = np.zeros((self.B, self.NB, 6), np.float32)  # x, y, th, vx, vy, w
+        self._schedule: ti.Ndarray | None = None  # (B, T, 3) target poses on the device (load_schedule)
+        self._schedule_body = 0
 
     # ================================================================== set-up
     def reset(self, specs: Sequence[EnvSpec], slots: Sequence[int] | None = None) -> None:
@@ -241,18 +243,38 @@ class MPMSolver:
         """Set body ``body``'s velocities so that it reaches ``target`` (B, 3) poses in ``horizon`` seconds.
 
         The same arithmetic as ``set_body_velocity((target - body_poses(body)) / horizon)`` (float64,
-        then stored as float32), but in one kernel launch instead of nine field copies: this is
-        the controller's per-tick call.
+        then stored as float32), but in one kernel launch instead of nine field copies.
         """
-        self._track(int(body), np.ascontiguousarray(target, np.float64).reshape(self.B, 3), float(horizon))
+        target = np.ascontiguousarray(target, np.float64).reshape(self.B, 1, 3)
+        self._track(int(body), target, 0, float(horizon))
+
+    def load_schedule(self, body: int, poses: np.ndarray) -> None:
+        """Upload body ``body``'s target poses (B, T, 3) for every control tick, once.
+
+        Why: the controller's per-tick call, :meth:`track_tick`, then reads its target where the
+        solver runs; on a GPU no pose crosses the bus during a trajectory (a per-tick upload
+        synchronises host and device every tick). ``track_tick(k, h)`` == ``track(body, poses[:, k], h)``.
+        """
+        poses = np.ascontiguousarray(poses, np.float64)
+        if poses.ndim != 3 or poses.shape[0] != self.B or poses.shape[2] != 3:
+            raise ValueError(f"load_schedule: expected ({self.B}, T, 3) poses, got shape {poses.shape}")
+        self._schedule = ti.ndarray(ti.f64, shape=poses.shape)
+        self._schedule.from_numpy(poses)
+        self._schedule_body = int(body)
+
+    def track_tick(self, k: int, horizon: float) -> None:
+        """Steer the scheduled body towards its pose at tick ``k`` of :meth:`load_schedule` in ``horizon`` s."""
+        if self._schedule is None or not 0 <= k < self._schedule.shape[1]:
+            raise ValueError(f"track_tick: tick {k} outside the loaded schedule (load_schedule first)")
+        self._track(self._schedule_body, self._schedule, int(k), float(horizon))
 
     @ti.kernel
-    def _track(self, k: ti.i32, target: ti.types.ndarray(dtype=ti.f64, ndim=2), h: ti.f64):
+    def _track(self, k: ti.i32, targets: ti.types.ndarray(dtype=ti.f64, ndim=3), tick: ti.i32, h: ti.f64):
         for b in range(self.B):
             if ti.static(self.dim == 2):
                 for d in ti.static(range(2)):
-                    self.body_vel[b, k][d] = ti.cast((target[b, d] - ti.cast(self.body_pos[b, k][d], ti.f64)) / h, ti.f32)
-            self.body_omega[b, k] = ti.cast((target[b, 2] - ti.cast(self.body_rot[b, k], ti.f64)) / h, ti.f32)
+                    self.body_vel[b, k][d] = ti.cast((targets[b, tick, d] - ti.cast(self.body_pos[b, k][d], ti.f64)) / h, ti.f32)
+            self.body_omega[b, k] = ti.cast((targets[b, tick, 2] - ti.cast(self.body_rot[b, k], ti.f64)) / h, ti.f32)
 
     def _pull_bodies(self, velocities: bool = True) -> None:
         """Refresh the host copy; velocities too before a push (``track`` writes them on the device)."""
@@ -286,6 +308,10 @@ class MPMSolver:
         for _ in range(int(n_substeps)):
             self._substep()
         self.time += n_substeps * self.cfg.dt
+
+    def sync(self) -> None:
+        """Wait until every launched kernel has finished (GPU launches are asynchronous; for timing)."""
+        ti.sync()
 
     def advance(self, duration: float) -> int:
         """Advance by ``duration`` seconds (rounded to whole substeps); returns the substeps taken."""
@@ -340,6 +366,7 @@ class MPMSolver:
         if getattr(self, "_tree", None) is not None:
             self._tree.destroy()
             self._tree = None
+        self._schedule = None
 
     # ================================================================== Taichi functions
     @ti.func

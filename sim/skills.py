@@ -127,6 +127,39 @@ class Obstacles:
                 idx[sel] = np.where(closer, k, idx[sel])
         return best, idx
 
+    def outline_sdf(self, boundary: np.ndarray, poses: np.ndarray, cutoff: float) -> tuple[np.ndarray, np.ndarray]:
+        """(distance, obstacle index), each (n, m): the outline ``boundary`` (m, 2, body frame) at ``poses`` (n, 3).
+
+        The same answer as ``sdf(to_world(boundary, poses).reshape(-1, 2), cutoff)`` where the distance is
+        below ``cutoff`` (elsewhere it may be larger, +inf included), found faster: an obstacle (tank walls,
+        each shape) is evaluated only at the poses whose outline's bounding circle comes within ``cutoff``
+        of it, so a cup path far from everything costs one circle test per pose and obstacle.
+        """
+        n, m = len(poses), len(boundary)
+        c0 = 0.5 * (boundary.min(0) + boundary.max(0))
+        r = float(np.linalg.norm(boundary - c0, axis=1).max())
+        centre = to_world(c0[None], poses)[:, 0]  # (n, 2)
+        pts = to_world(boundary, poses)  # (n, m, 2)
+        best, idx = np.full((n, m), np.inf), np.full((n, m), -1)
+        rows = np.flatnonzero(np.minimum((centre - self.interior_lo).min(1), (self.interior_hi - centre).min(1)) < r + cutoff)
+        if rows.size:
+            p = pts[rows]
+            best[rows] = np.minimum((p - self.interior_lo).min(2), (self.interior_hi - p).min(2))
+        for k, body in enumerate(self.bodies):
+            pose = np.asarray(body.pose, float)
+            c, s = math.cos(pose[2]), math.sin(pose[2])
+            for sh in body.shapes:
+                cx, cy = sh.center
+                sc = pose[:2] + (c * cx - s * cy, s * cx + c * cy)
+                rows = np.flatnonzero(np.hypot(*(centre - sc).T) < r + _bounding_radius(sh) + cutoff)
+                if not rows.size:
+                    continue
+                d = _sdf_shape(sh, pose, pts[rows].reshape(-1, 2)).reshape(rows.size, m)
+                closer = d < best[rows]
+                best[rows] = np.where(closer, d, best[rows])
+                idx[rows] = np.where(closer, k, idx[rows])
+        return best, idx
+
 
 def _bounding_radius(shape: Shape) -> float:
     """Radius of a circle about the shape's centre that contains it."""
@@ -219,8 +252,7 @@ def plan_schedule(cfg: WorldConfig, start: np.ndarray, actions: np.ndarray, obst
             back = theta * (1 - min_jerk(np.arange(1, n + 1) * h / T))
             angles = np.concatenate([tilt, np.full(int(round(hold / h)), theta), back])
             seg = tilt_about_lip(p0[None], lip, (p0[2] + angles)[None])[0]
-        d, idx = obstacles.sdf(to_world(boundary, seg).reshape(-1, 2), cutoff=CONTACT_MARGIN)
-        d, idx = d.reshape(len(seg), -1), idx.reshape(len(seg), -1)
+        d, idx = obstacles.outline_sdf(boundary, seg, CONTACT_MARGIN)
         hit = np.flatnonzero(d.min(1) < CONTACT_MARGIN)
         sched.executed += 1
         ends = False

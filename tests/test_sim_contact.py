@@ -159,3 +159,31 @@ def test_planner_prunes_a_move_stopped_just_short_of_its_target(world):
 
     assert refill(dyn) == 0
     assert refill(_Commanded()) == 4  # the same move without contacts is a plain transition
+
+
+def test_culled_outline_distances_match_the_full_sdf_below_the_cutoff(world):
+    """``Obstacles.outline_sdf`` (the schedule's contact test, culled per pose and obstacle) gives the
+    full ``Obstacles.sdf``'s distance and obstacle wherever that is below the cutoff, and never less
+    than the cutoff elsewhere, on cup paths of random trajectories that touch the plant, cup and walls."""
+    from sim.execute import PouringExecutor
+    from sim.problems import sample_problems
+    from sim.skills import to_world, validate_actions
+
+    ex = PouringExecutor(world)
+    rng = np.random.default_rng(5)
+    probs = sample_problems(world, 12, 5)
+    cutoff, touched = 0.004, 0
+    for p in probs:
+        obst = ex._obstacles(world.scene("target", p.start[:3], p.plant_jitter))
+        acts = validate_actions(world, [random_actions(world, 4, rng)])[0]
+        poses = plan_schedule(world, np.asarray(p.start[:3], float), acts, obst, ex._boundary).poses
+        d, idx = obst.outline_sdf(ex._boundary, poses, cutoff)
+        full_d, full_i = obst.sdf(to_world(ex._boundary, poses).reshape(-1, 2))
+        full_d, full_i = full_d.reshape(d.shape), full_i.reshape(d.shape)
+        close = full_d < cutoff
+        touched += close.any(1).sum()
+        np.testing.assert_array_equal(d[close], full_d[close])
+        np.testing.assert_array_equal(idx[close], full_i[close])
+        assert (d[~close] >= cutoff).all()
+    assert touched > 20  # the paths did come close to something
+    ex.close()

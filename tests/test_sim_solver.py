@@ -237,6 +237,32 @@ def test_cpu_runs_are_deterministic():
     np.testing.assert_array_equal(a1, b1)
 
 
+def test_loaded_schedule_steers_exactly_like_per_tick_targets():
+    """``load_schedule`` + ``track_tick`` (targets stay on the device) gives the same bits as ``track``
+    with the targets sent every tick, and a tick outside the schedule is refused."""
+    t = np.linspace(0, 1, 11)[:, None]
+    poses = np.stack([np.array([0.3, 0.12, 0.0]) + t * [0.05, 0.02, 0.6],
+                      np.array([0.25, 0.12, 0.0]) + t * [-0.03, 0.04, -0.4]])  # (2, 11, 3)
+    runs = []
+    for device_side in (False, True):
+        solver = MPMSolver(SimConfig(n_envs=2, max_particles=512))
+        solver.reset([_cup_env(), _cup_env(x=0.25)])
+        h = 5 * solver.cfg.dt
+        if device_side:
+            solver.load_schedule(0, poses)
+        for k in range(1, poses.shape[1]):
+            solver.track_tick(k, h) if device_side else solver.track(0, poses[:, k], h)
+            solver.step(5)
+        runs.append((solver.positions(0).copy(), solver.positions(1).copy(), solver.body_poses(0)))
+        if device_side:
+            with pytest.raises(ValueError, match="outside the loaded schedule"):
+                solver.track_tick(poses.shape[1], h)
+        solver.close()
+    for a, b in zip(*runs):
+        np.testing.assert_array_equal(a, b)
+    assert np.abs(runs[0][2][:, :2] - poses[:, -1, :2]).max() < 1e-3  # it did follow the schedule
+
+
 def test_frozen_environment_costs_nothing_and_resumes_where_it_stopped():
     """Env 1 frozen while env 0 runs, then the other way round: both end bit-identical (same scene,
     same motion, same substeps), and a frozen environment's particles and bodies do not change."""
