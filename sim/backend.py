@@ -28,7 +28,9 @@ def init_taichi(arch: str = "cpu", *, debug: bool = False, kernel_profiler: bool
         ti.reset()
     kwargs = dict(default_fp=ti.f32, debug=debug, log_level=ti.WARN, kernel_profiler=kernel_profiler)
     if arch == "cpu":
-        ti.init(arch=ti.cpu, **kwargs)
+        # no fast math: IEEE arithmetic without contraction into FMA or reassociation, so that the
+        # rounding does not depend on the host's vector width (it costs no measurable speed, BENCHMARKS.md)
+        ti.init(arch=ti.cpu, fast_math=False, **kwargs)
     else:
         ti.init(arch=ti.gpu, **kwargs)
         got = ti.lang.impl.current_cfg().arch
@@ -51,10 +53,12 @@ def cpu_fingerprint() -> str:
     """The machine, its vector instruction sets and the numpy and Taichi versions: what decides the CPU
     solver's floating-point results.
 
-    Why: Taichi compiles the solver with fast math for the host CPU, so the lane width (AVX2 or
-    AVX-512) and FMA change the rounding of reductions, and numpy's vectorised sin / cos (the cup's
-    schedule) differ between instruction sets and releases; results are bit-for-bit only between
-    machines with the same fingerprint (the shipped dataset records the one that made it)."""
+    Why: data made before session 19 used Taichi's fast math, under which the lane width (AVX2 or
+    AVX-512) and FMA change the rounding, and numpy's vectorised sin / cos / power, which differ between
+    instruction sets and releases. The CPU solver now runs without fast math and the host-side schedule
+    uses libm's scalar functions, which should make results the same on every x86-64 CPU with the same
+    libraries; that is not yet verified on a second CPU type, so bit-for-bit comparisons still require
+    the same fingerprint (the shipped dataset records the one that made it)."""
     import platform
 
     import numpy as np

@@ -7,15 +7,31 @@ every control step, so integration error never accumulates.
 
 from __future__ import annotations
 
+import math
 from typing import Callable
 
 import numpy as np
 
 
+def cos_sin(angles: np.ndarray, portable: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """cos and sin of an array of angles; ``portable``: through libm one value at a time.
+
+    Why: numpy's vectorised sin / cos round differently on AVX2 and AVX-512 CPUs (and between
+    releases); the simulator's cup schedules must come out the same bits on every machine, so they
+    take the scalar path. Callers on a hot path that need no such guarantee (the planner) keep numpy's.
+    """
+    a = np.asarray(angles, float)
+    if not portable:
+        return np.cos(a), np.sin(a)
+    flat = a.ravel().tolist()
+    return (np.fromiter(map(math.cos, flat), float, len(flat)).reshape(a.shape),
+            np.fromiter(map(math.sin, flat), float, len(flat)).reshape(a.shape))
+
+
 def min_jerk(tau: np.ndarray | float) -> np.ndarray:
     """Minimum-jerk blend 0 -> 1 on tau in [0, 1] (zero velocity and acceleration at both ends)."""
     t = np.clip(tau, 0.0, 1.0)
-    return t**3 * (10 - 15 * t + 6 * t**2)
+    return t * t * t * (10 - 15 * t + 6 * (t * t))  # products, not powers: numpy's vectorised pow varies by CPU
 
 
 #: peak of d(min_jerk)/dtau: a min-jerk move of length D in time T peaks at this * D / T.

@@ -30,6 +30,7 @@ import taichi as ti
 
 from .backend import init_taichi
 from .config import ConfigError, SimConfig
+from .motion import cos_sin
 from .physics import affine_momentum, box_sdf, bspline_weights, ghost_mass, separate, update_volume_ratio
 from .scene import SHAPE_KINDS, EnvSpec, Shape, sample_water
 
@@ -213,7 +214,8 @@ class MPMSolver:
             self.body_vel.from_numpy(np.ascontiguousarray(st[..., 3:5]))
         self.body_rot.from_numpy(np.ascontiguousarray(st[..., 2]))
         self.body_omega.from_numpy(np.ascontiguousarray(st[..., 5]))
-        self.body_cs.from_numpy(np.stack([np.cos(st[..., 2]), np.sin(st[..., 2])], -1).astype(np.float32))
+        c, s = cos_sin(st[..., 2].astype(np.float64), portable=True)  # the same bits on every CPU
+        self.body_cs.from_numpy(np.stack([c, s], -1).astype(np.float32))
 
     # ================================================================== bodies
     def body_poses(self, body: int) -> np.ndarray:

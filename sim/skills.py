@@ -20,7 +20,7 @@ from typing import Sequence
 import numpy as np
 from task import on_lattice
 
-from .motion import min_jerk, min_jerk_duration
+from .motion import cos_sin, min_jerk, min_jerk_duration
 from .scene import Body, Shape
 from .world import WorldConfig
 
@@ -138,8 +138,8 @@ class Obstacles:
         n, m = len(poses), len(boundary)
         c0 = 0.5 * (boundary.min(0) + boundary.max(0))
         r = float(np.linalg.norm(boundary - c0, axis=1).max())
-        centre = to_world(c0[None], poses)[:, 0]  # (n, 2)
-        pts = to_world(boundary, poses)  # (n, m, 2)
+        centre = to_world(c0[None], poses, portable=True)[:, 0]  # (n, 2)
+        pts = to_world(boundary, poses, portable=True)  # (n, m, 2)
         best, idx = np.full((n, m), np.inf), np.full((n, m), -1)
         rows = np.flatnonzero(np.minimum((centre - self.interior_lo).min(1), (self.interior_hi - centre).min(1)) < r + cutoff)
         if rows.size:
@@ -178,22 +178,25 @@ def cup_boundary(cfg: WorldConfig, spacing: float = 0.003) -> np.ndarray:
     return np.concatenate(pts)
 
 
-def to_world(points: np.ndarray, poses: np.ndarray) -> np.ndarray:
-    """points (m, 2) in the body frame, poses (k, 3) -> (k, m, 2) world points."""
-    c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+def to_world(points: np.ndarray, poses: np.ndarray, portable: bool = False) -> np.ndarray:
+    """points (m, 2) in the body frame, poses (k, 3) -> (k, m, 2) world points (``portable``: :func:`cos_sin`)."""
+    c, s = cos_sin(poses[:, 2], portable)
+    c, s = c[:, None], s[:, None]
     x = c * points[None, :, 0] - s * points[None, :, 1] + poses[:, None, 0]
     y = s * points[None, :, 0] + c * points[None, :, 1] + poses[:, None, 1]
     return np.stack([x, y], -1)
 
 
-def tilt_about_lip(start: np.ndarray, lip: np.ndarray, phi: np.ndarray) -> np.ndarray:
+def tilt_about_lip(start: np.ndarray, lip: np.ndarray, phi: np.ndarray, portable: bool = False) -> np.ndarray:
     """Cup poses (n, m, 3) when cups at ``start`` (n, 3) are turned about their pouring lip (body frame
-    point ``lip``) to absolute angles ``phi`` (n, m): origin = pivot - R(phi) lip, pivot fixed."""
-    c, s = np.cos(start[:, 2]), np.sin(start[:, 2])
+    point ``lip``) to absolute angles ``phi`` (n, m): origin = pivot - R(phi) lip, pivot fixed
+    (``portable``: :func:`cos_sin`)."""
+    c, s = cos_sin(start[:, 2], portable)
     px = start[:, 0] + c * lip[0] - s * lip[1]
     py = start[:, 1] + s * lip[0] + c * lip[1]
-    ox = px[:, None] - (np.cos(phi) * lip[0] - np.sin(phi) * lip[1])
-    oy = py[:, None] - (np.sin(phi) * lip[0] + np.cos(phi) * lip[1])
+    cp, sp = cos_sin(phi, portable)
+    ox = px[:, None] - (cp * lip[0] - sp * lip[1])
+    oy = py[:, None] - (sp * lip[0] + cp * lip[1])
     return np.stack([ox, oy, phi], -1)
 
 
@@ -218,7 +221,7 @@ def start_overlap(obstacles: "Obstacles", boundary: np.ndarray, pose: np.ndarray
     """What the cup at ``pose`` overlaps ("tank wall" or "<name> body"), or None when it is clear.
 
     The one start check of both the executor and the differentiable pour (each words its error)."""
-    d, idx = obstacles.sdf(to_world(boundary, np.asarray(pose, float)[None])[0])
+    d, idx = obstacles.sdf(to_world(boundary, np.asarray(pose, float)[None], portable=True)[0])
     if d.min() >= 0:
         return None
     who = int(idx[np.argmin(d)])
@@ -251,7 +254,7 @@ def plan_schedule(cfg: WorldConfig, start: np.ndarray, actions: np.ndarray, obst
             tilt = theta * min_jerk(np.arange(1, n + 1) * h / T)
             back = theta * (1 - min_jerk(np.arange(1, n + 1) * h / T))
             angles = np.concatenate([tilt, np.full(int(round(hold / h)), theta), back])
-            seg = tilt_about_lip(p0[None], lip, (p0[2] + angles)[None])[0]
+            seg = tilt_about_lip(p0[None], lip, (p0[2] + angles)[None], portable=True)[0]
         d, idx = obstacles.outline_sdf(boundary, seg, CONTACT_MARGIN)
         hit = np.flatnonzero(d.min(1) < CONTACT_MARGIN)
         sched.executed += 1
