@@ -150,7 +150,8 @@ class PouringExecutor:
                                  f"choose a start pose clear of every obstacle")
             return plan_schedule(cfg, starts[b], acts[b], obst, self._boundary)
 
-        workers = min(SCHEDULE_THREADS, len(os.sched_getaffinity(0)), max(1, B // 4))
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        workers = min(SCHEDULE_THREADS, cpus, max(1, B // 4))
         if workers > 1:
             with ThreadPoolExecutor(workers) as pool:
                 scheds = list(pool.map(schedule, range(B)))  # in order: the first bad start raises first
