@@ -29,7 +29,7 @@ def init_taichi(arch: str = "cpu", *, debug: bool = False, kernel_profiler: bool
     kwargs = dict(default_fp=ti.f32, debug=debug, log_level=ti.WARN, kernel_profiler=kernel_profiler)
     if arch == "cpu":
         # no fast math: IEEE arithmetic without contraction into FMA or reassociation, so that the
-        # rounding does not depend on the host's vector width (it costs no measurable speed, BENCHMARKS.md)
+        # rounding does not depend on the host's vector width (it costs 7-20 % of speed: BENCHMARKS.md, session 19)
         ti.init(arch=ti.cpu, fast_math=False, **kwargs)
     else:
         ti.init(arch=ti.gpu, **kwargs)

@@ -214,7 +214,7 @@ class MPMSolver:
             self.body_vel.from_numpy(np.ascontiguousarray(st[..., 3:5]))
         self.body_rot.from_numpy(np.ascontiguousarray(st[..., 2]))
         self.body_omega.from_numpy(np.ascontiguousarray(st[..., 5]))
-        c, s = cos_sin(st[..., 2].astype(np.float64), portable=True)  # the same bits on every CPU
+        c, s = cos_sin(st[..., 2], portable=True)  # float64 through libm: the same bits on every CPU
         self.body_cs.from_numpy(np.stack([c, s], -1).astype(np.float32))
 
     # ================================================================== bodies

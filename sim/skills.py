@@ -106,32 +106,39 @@ class Obstacles:
         points within ``cutoff`` of its bounding circle, so far-away shapes cost nothing. Where the
         true distance is below ``cutoff`` the result (distance and index) is the same as without it;
         elsewhere it may be an upper bound of the true distance (from the shapes that were evaluated).
+        Not quite for ellipses: their distance estimate can dip below ``cutoff`` at points just outside
+        the bounding circle grown by ``cutoff``, which this skips (rare grazes; :meth:`outline_sdf` does not).
         """
         walls = np.minimum((p - self.interior_lo).min(1), (self.interior_hi - p).min(1))
         best, idx = walls, np.full(len(p), -1)
+        for k, pose, sh, centre in self._shapes():
+            if cutoff is None:
+                sel = slice(None)
+            else:
+                sel = np.flatnonzero(np.hypot(*(p - centre).T) - _bounding_radius(sh) < cutoff)
+                if not len(sel):
+                    continue
+            d = _sdf_shape(sh, pose, p[sel])
+            closer = d < best[sel]
+            best[sel] = np.where(closer, d, best[sel])
+            idx[sel] = np.where(closer, k, idx[sel])
+        return best, idx
+
+    def _shapes(self):
+        """(body index, body pose, shape, the shape's centre in the world) for every obstacle shape."""
         for k, body in enumerate(self.bodies):
             pose = np.asarray(body.pose, float)
             c, s = math.cos(pose[2]), math.sin(pose[2])
             for sh in body.shapes:
-                if cutoff is None:
-                    sel = slice(None)
-                else:
-                    cx, cy = sh.center
-                    centre = pose[:2] + (c * cx - s * cy, s * cx + c * cy)
-                    sel = np.flatnonzero(np.hypot(*(p - centre).T) - _bounding_radius(sh) < cutoff)
-                    if not len(sel):
-                        continue
-                d = _sdf_shape(sh, pose, p[sel])
-                closer = d < best[sel]
-                best[sel] = np.where(closer, d, best[sel])
-                idx[sel] = np.where(closer, k, idx[sel])
-        return best, idx
+                cx, cy = sh.center
+                yield k, pose, sh, pose[:2] + (c * cx - s * cy, s * cx + c * cy)
 
     def outline_sdf(self, boundary: np.ndarray, poses: np.ndarray, cutoff: float) -> tuple[np.ndarray, np.ndarray]:
         """(distance, obstacle index), each (n, m): the outline ``boundary`` (m, 2, body frame) at ``poses`` (n, 3).
 
-        The same answer as ``sdf(to_world(boundary, poses).reshape(-1, 2), cutoff)`` where the distance is
-        below ``cutoff`` (elsewhere it may be larger, +inf included), found faster: an obstacle (tank walls,
+        The same answer as the full ``sdf(to_world(boundary, poses, portable=True).reshape(-1, 2))`` (no
+        cutoff) where that distance is below ``cutoff`` (elsewhere it may be larger, +inf included), found
+        faster (and with libm's trigonometry, as the schedule needs): an obstacle (tank walls,
         each shape) is evaluated only at the poses whose outline's bounding circle comes within ``cutoff``
         of it, so a cup path far from everything costs one circle test per pose and obstacle.
         """
@@ -145,19 +152,14 @@ class Obstacles:
         if rows.size:
             p = pts[rows]
             best[rows] = np.minimum((p - self.interior_lo).min(2), (self.interior_hi - p).min(2))
-        for k, body in enumerate(self.bodies):
-            pose = np.asarray(body.pose, float)
-            c, s = math.cos(pose[2]), math.sin(pose[2])
-            for sh in body.shapes:
-                cx, cy = sh.center
-                sc = pose[:2] + (c * cx - s * cy, s * cx + c * cy)
-                rows = np.flatnonzero(np.hypot(*(centre - sc).T) < r + _bounding_radius(sh) + cutoff)
-                if not rows.size:
-                    continue
-                d = _sdf_shape(sh, pose, pts[rows].reshape(-1, 2)).reshape(rows.size, m)
-                closer = d < best[rows]
-                best[rows] = np.where(closer, d, best[rows])
-                idx[rows] = np.where(closer, k, idx[rows])
+        for k, pose, sh, sc in self._shapes():
+            rows = np.flatnonzero(np.hypot(*(centre - sc).T) < r + _bounding_radius(sh) + cutoff)
+            if not rows.size:
+                continue
+            d = _sdf_shape(sh, pose, pts[rows].reshape(-1, 2)).reshape(rows.size, m)
+            closer = d < best[rows]
+            best[rows] = np.where(closer, d, best[rows])
+            idx[rows] = np.where(closer, k, idx[rows])
         return best, idx
 
 

@@ -178,7 +178,7 @@ def test_culled_outline_distances_match_the_full_sdf_below_the_cutoff(world):
         acts = validate_actions(world, [random_actions(world, 4, rng)])[0]
         poses = plan_schedule(world, np.asarray(p.start[:3], float), acts, obst, ex._boundary).poses
         d, idx = obst.outline_sdf(ex._boundary, poses, cutoff)
-        full_d, full_i = obst.sdf(to_world(ex._boundary, poses).reshape(-1, 2))
+        full_d, full_i = obst.sdf(to_world(ex._boundary, poses, portable=True).reshape(-1, 2))
         full_d, full_i = full_d.reshape(d.shape), full_i.reshape(d.shape)
         close = full_d < cutoff
         touched += close.any(1).sum()
