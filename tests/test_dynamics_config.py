@@ -99,6 +99,19 @@ def test_the_plant_is_not_part_of_the_source_data_hash():
     assert data_hash(c, w) != data_hash(c)
 
 
+def test_the_solver_arch_is_not_part_of_the_data_hash():
+    """A GPU run (world.sim.arch=gpu) uses the shipped, CPU-made data instead of regenerating them
+    (session 20's device run did, for 3 min 18 s, before this); the hash of the CPU world is unchanged."""
+    from sim.world import DEFAULT_CONFIG
+
+    c = DynamicsConfig()
+    w = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    gpu = {**w, "sim": {**w["sim"], "arch": "gpu"}}
+    assert data_hash(c, gpu) == data_hash(c, w) == data_hash(c)
+    assert model_hash(c, world_cfg=gpu) == model_hash(c)
+    assert data_hash(c, {**w, "sim": {**w["sim"], "dt": w["sim"]["dt"] / 2}}) != data_hash(c)  # physics still counts
+
+
 def test_world_given_as_object_or_mapping_overrides_the_file():
     """The main job passes its own (possibly overridden) world config; equal worlds hash equally."""
     from omegaconf import OmegaConf
