@@ -29,4 +29,4 @@ step 100 execute_b32 python -m benchmarks.sim_execute --arch gpu --n 32 --out "$
 step 90 execute_b512 python -m benchmarks.sim_execute --arch gpu --n 512 --no-compare --out "$out/execute_gpu_b512.json"
 step 140 execute_b2048 python -m benchmarks.sim_execute --arch gpu --n 2048 --no-compare --out "$out/execute_gpu_b2048.json"
 step 80 check_arch python -m benchmarks.check_arch --arch gpu --reference cpu --n 8 --out "$out/check_arch_gpu.json"
-step 110 planner_pool python -m benchmarks.planner_pool --workers "$workers" --repeat 1 --out "$out/planner_pool_$workers.json"
+step 150 planner_pool python -m benchmarks.planner_pool --workers "$workers" --repeat 1 --out "$out/planner_pool_$workers.json"
