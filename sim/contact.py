@@ -12,6 +12,10 @@ interval); the cup's closed outer box is sampled every ``spacing`` metres and th
 outline vertices are tested against that box. A path that passes within ``clearance`` of an
 obstacle counts as stuck (conservative: the samples can step over a grazing contact). Agreement with the simulator's
 schedule is checked in ``tests/test_sim_contact.py``.
+
+The obstacles' distance is read from a raster (:class:`DistanceRaster`, bilinear, ``resolution`` metres)
+rather than evaluated shape by shape: a planner calls this with ~17 rows at a time, where the cost is the
+number of numpy calls, not their size (session 20: the contact check was 42 % of a planner's time).
 """
 
 from __future__ import annotations
@@ -23,16 +27,70 @@ from .skills import CONTACT_MARGIN, MOVE, Obstacles, cup_boundary, tilt_about_li
 from .world import WorldConfig, check_world
 
 
+class DistanceRaster:
+    """The obstacle bodies' signed distance (tank walls aside) sampled on a grid, read bilinearly.
+
+    Why: one bilinear read is a dozen numpy calls whatever the number of shapes, where
+    :meth:`Obstacles.sdf` makes a dozen per shape. The grid covers the bodies' bounding box grown by
+    ``reach``; farther points read +inf (only distances below ``reach`` are wanted). Error: none where
+    the distance is linear across a cell (along a face), about ``resolution`` / 8 next to a convex
+    corner; the closest body is the one at the nearest grid node.
+    """
+
+    def __init__(self, obstacles: Obstacles, resolution: float, reach: float):
+        if not resolution > 0:
+            raise ValueError(f"resolution = {resolution}: allowed a grid spacing > 0 (m)")
+        self.h = float(resolution)
+        self.walls = Obstacles([], obstacles.interior_lo, obstacles.interior_hi)
+        pts = [to_world(sh.outline(), np.asarray(b.pose, float)[None])[0] for b in obstacles.bodies for sh in b.shapes]
+        if not pts:
+            self.lo, self.shape = np.zeros(2), (0, 0)
+            return
+        allp = np.concatenate(pts)
+        self.lo = allp.min(0) - reach - 2 * self.h
+        self.shape = tuple(int(n) for n in np.ceil((allp.max(0) + reach + 2 * self.h - self.lo) / self.h) + 1)
+        gx, gy = np.meshgrid(*(self.lo[i] + self.h * np.arange(self.shape[i]) for i in range(2)), indexing="ij")
+        nodes = np.stack([gx.ravel(), gy.ravel()], 1)
+        bodies_only = Obstacles(obstacles.bodies, np.full(2, -np.inf), np.full(2, np.inf))
+        d, idx = bodies_only.sdf(nodes)
+        self.d, self.idx = d.reshape(self.shape), idx.reshape(self.shape)
+
+    def __call__(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(distance, closest obstacle: body index or -1 for the tank walls) of points p (k, 2)."""
+        best, idx = self.walls.sdf(p)
+        if not self.shape[0]:
+            return best, idx
+        f = (p - self.lo) / self.h
+        i = np.floor(f).astype(int)
+        inside = ((i >= 0) & (i < np.array(self.shape) - 1)).all(1)
+        k = np.flatnonzero(inside)
+        if k.size:
+            ix, iy = i[k, 0], i[k, 1]
+            tx, ty = (f[k] - i[k]).T
+            g = self.d
+            d = ((1 - tx) * ((1 - ty) * g[ix, iy] + ty * g[ix, iy + 1])
+                 + tx * ((1 - ty) * g[ix + 1, iy] + ty * g[ix + 1, iy + 1]))
+            near = np.rint(f[k]).astype(int)
+            closer = d < best[k]
+            best[k] = np.where(closer, d, best[k])
+            idx[k] = np.where(closer, self.idx[near[:, 0], near[:, 1]], idx[k])
+        return best, idx
+
+
 class ContactPredictor:
     """First contact of move / pour paths with one world's static obstacles (no plant jitter)."""
 
     def __init__(self, cfg: WorldConfig, world: str = "source", samples: int = 24, refine: int = 8,
-                 spacing: float = 0.06, clearance: float = 0.002):
+                 spacing: float = 0.06, clearance: float = 0.002, resolution: float | None = 0.001):
+        """``resolution``: grid spacing (m) of the obstacles' distance raster; None evaluates every shape
+        exactly at every point (slower; the reference of the raster's test)."""
         check_world(world)
         if samples < 2 or refine < 1:
             raise ValueError(f"samples = {samples}, refine = {refine}: allowed samples >= 2 and refine >= 1")
         if clearance < 0:
             raise ValueError(f"clearance = {clearance}: allowed a distance >= 0 (m)")
+        if resolution is not None and not resolution > 0:
+            raise ValueError(f"resolution = {resolution}: allowed a grid spacing > 0 (m) or None (exact distances)")
         self.cfg, self.samples, self.refine = cfg, int(samples), int(refine)
         #: a path closer than this to an obstacle counts as stuck: the simulator's contact margin
         #: plus a safety clearance that covers the path sampling (grazing paths count as stuck)
@@ -69,6 +127,8 @@ class ContactPredictor:
         self._obstacle_owner = np.concatenate(owner) if owner else np.zeros(0, int)
         self.lip = cfg.controlled_cup.lip
         self.lattice = float(cfg.skills.get("lattice", 0.0))  # where a move really ends (plan_schedule)
+        self._distance = (DistanceRaster(self.obstacles, resolution, 2 * self.margin) if resolution is not None
+                          else lambda p: self.obstacles.sdf(p, cutoff=self.margin))  # exact below the margin
 
     # ------------------------------------------------------------------ paths
     def _poses(self, p0: np.ndarray, a: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -95,7 +155,7 @@ class ContactPredictor:
         near = np.flatnonzero(self._near(flat))
         if near.size:
             pts = to_world(self.boundary, flat[near]).reshape(-1, 2)
-            d, idx = self.obstacles.sdf(pts, cutoff=self.margin)  # exact below the margin, all callers compare
+            d, idx = self._distance(pts)  # callers only compare with the margin
             d, idx = d.reshape(near.size, -1), idx.reshape(near.size, -1)
             if len(self._obstacle_pts):
                 d = np.concatenate([d, self._cup_sdf(flat[near], self._obstacle_pts)], 1)

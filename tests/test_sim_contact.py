@@ -59,6 +59,40 @@ def test_agrees_with_the_simulators_schedule(world, predictor):
     assert names <= {"target", "tank"}
 
 
+def test_distance_raster_reads_the_exact_distance_near_the_obstacles(world, predictor):
+    """The raster (1 mm, bilinear) gives the exact signed distance within 0.3 mm, and the same closest
+    obstacle, wherever a contact is decided (distance below twice the margin); beyond its reach +inf or
+    the walls' distance."""
+    from sim.contact import DistanceRaster
+
+    rng = np.random.default_rng(0)
+    obst = predictor.obstacles
+    raster = DistanceRaster(obst, 0.001, 2 * predictor.margin)
+    p = rng.uniform(0.0, 0.6, (200_000, 2))
+    exact_d, exact_i = obst.sdf(p)
+    d, i = raster(p)
+    close = exact_d < 2 * predictor.margin
+    assert close.sum() > 5_000  # target cup and tank walls both
+    assert np.abs(d[close] - exact_d[close]).max() < 3e-4
+    sure = close & (np.abs(exact_d) > 0.002)  # the nearest node may lie across a junction of two obstacles' zones
+    assert (i[sure] == exact_i[sure]).mean() > 0.999
+    assert (d[~close] >= 2 * predictor.margin - 3e-4).all()
+    with pytest.raises(ValueError, match="resolution"):
+        ContactPredictor(world, resolution=0.0)
+
+
+def test_raster_and_exact_distances_predict_the_same_contacts(world, predictor):
+    starts, acts = _random_transitions(world, predictor, 400, seed=11)
+    exact = ContactPredictor(world, resolution=None)
+    s1, p1, w1 = predictor.first_contact(starts, acts)
+    s2, p2, w2 = exact.first_contact(starts, acts)
+    assert s2.sum() >= 40
+    assert (s1 == s2).mean() >= 0.99
+    both = s1 & s2
+    assert np.median(np.abs(p1[both] - p2[both]).max(1)) < 1e-9  # the same first touching sample almost always
+    assert (w1[both] == w2[both]).mean() >= 0.98
+
+
 def test_known_cases(world, predictor):
     tx = world.target_pose()[0]
     starts = np.array([[0.45, 0.08, 0.0], [0.45, 0.30, 0.0], [0.45, 0.30, 0.0]])
