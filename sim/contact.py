@@ -127,8 +127,7 @@ class ContactPredictor:
         self._obstacle_owner = np.concatenate(owner) if owner else np.zeros(0, int)
         self.lip = cfg.controlled_cup.lip
         self.lattice = float(cfg.skills.get("lattice", 0.0))  # where a move really ends (plan_schedule)
-        self._distance = (DistanceRaster(self.obstacles, resolution, 2 * self.margin) if resolution is not None
-                          else lambda p: self.obstacles.sdf(p, cutoff=self.margin))  # exact below the margin
+        self._raster = DistanceRaster(self.obstacles, resolution, 2 * self.margin) if resolution is not None else None
 
     # ------------------------------------------------------------------ paths
     def _poses(self, p0: np.ndarray, a: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -155,7 +154,8 @@ class ContactPredictor:
         near = np.flatnonzero(self._near(flat))
         if near.size:
             pts = to_world(self.boundary, flat[near]).reshape(-1, 2)
-            d, idx = self._distance(pts)  # callers only compare with the margin
+            # callers only compare with the margin: the exact path need only be exact below it
+            d, idx = self._raster(pts) if self._raster is not None else self.obstacles.sdf(pts, cutoff=self.margin)
             d, idx = d.reshape(near.size, -1), idx.reshape(near.size, -1)
             if len(self._obstacle_pts):
                 d = np.concatenate([d, self._cup_sdf(flat[near], self._obstacle_pts)], 1)
