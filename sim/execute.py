@@ -9,9 +9,11 @@ trajectory the outcome (goal reached, final spill, stuck, category), optionally 
 from __future__ import annotations
 
 import logging
+import multiprocessing
 import os
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -27,7 +29,12 @@ from .world import CTRL, WorldConfig, check_world
 log = logging.getLogger(__name__)
 
 CATEGORIES = ("successful_pour", "unsuccessful_pour", "stuck_in_plant", "other")
-SCHEDULE_THREADS = 16  # most threads that compute a batch's cup schedules
+SCHEDULE_THREADS = 16  # most threads (or processes) that compute a batch's cup schedules
+#: batches at least this large compute their cup schedules in worker processes when more than 2 CPUs are
+#: available: the schedule's numpy calls are too small to run long without the GIL, so threads bought about
+#: nothing at B = 2048 on a 16-core GPU box (BENCHMARKS.md, "Session 20: an H200")
+SCHEDULE_PROCESS_MIN_BATCH = 256
+SCHEDULE_PROCESS_MIN_CPUS = 3
 POUR_EVIDENCE = 0.02  # fraction of water that must leave the controlled cup to call it a pour
 
 
@@ -69,6 +76,34 @@ def categorise(states: np.ndarray, stuck_on: str | None, unstable: bool, max_spi
     return "other"
 
 
+def scene_obstacles(cfg: WorldConfig, bodies: Sequence) -> Obstacles:
+    """A scene's bodies other than the controlled cup (``spec.bodies[1:]``), inside the tank's interior."""
+    lo, hi = np.full(2, cfg.floor), np.asarray(cfg.sim["domain"], float) - cfg.floor
+    return Obstacles(list(bodies), lo, hi)
+
+
+def schedule_trajectory(cfg: WorldConfig, boundary: np.ndarray, bodies: Sequence, start: np.ndarray,
+                        actions: np.ndarray, b: int) -> Schedule:
+    """The cup schedule of environment ``b`` (its start pose checked against the obstacles first)."""
+    obst = scene_obstacles(cfg, bodies)
+    name = start_overlap(obst, boundary, start)
+    if name is not None:
+        raise ValueError(f"starts[{b}] = {np.asarray(start).tolist()}: the cup overlaps the {name} there; "
+                         f"choose a start pose clear of every obstacle")
+    return plan_schedule(cfg, start, actions, obst, boundary)
+
+
+_WORKER: dict = {}  # the world config and cup outline of a schedule worker process
+
+
+def _init_schedule_worker(cfg: WorldConfig, boundary: np.ndarray) -> None:
+    _WORKER.update(cfg=cfg, boundary=boundary)
+
+
+def _schedule_in_worker(job: tuple) -> Schedule:
+    return schedule_trajectory(_WORKER["cfg"], _WORKER["boundary"], *job)
+
+
 class PouringExecutor:
     """Runs batches of trajectories; keeps one compiled solver per batch size for reuse."""
 
@@ -78,6 +113,7 @@ class PouringExecutor:
         self._solvers: dict[int, MPMSolver] = {}
         self._boundary = cup_boundary(cfg)
         self.last_timing: dict[str, float] = {}
+        self._schedule_pool: ProcessPoolExecutor | None = None  # started by the first large batch
 
     def solver(self, n_envs: int) -> MPMSolver:
         if n_envs not in self._solvers:
@@ -89,6 +125,36 @@ class PouringExecutor:
         for s in self._solvers.values():
             s.close()
         self._solvers.clear()
+        if self._schedule_pool is not None:
+            self._schedule_pool.shutdown(cancel_futures=True)
+            self._schedule_pool = None
+
+    def _schedules(self, specs: list, starts: np.ndarray, acts: list[np.ndarray]) -> list[Schedule]:
+        """Every environment's cup schedule, in order (the first bad start raises first): in worker
+        processes for large batches where there are CPUs for them, else on threads (numpy releases
+        the GIL in its array loops). The same schedules either way (tests/test_worlds.py). Spawned
+        workers import the caller's main module, as planner workers do: a script that runs large batches
+        guards its entry point with ``if __name__ == "__main__"`` (else the pool breaks and threads take over)."""
+        B = len(specs)
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        jobs = [(specs[b].bodies[1:], starts[b], acts[b], b) for b in range(B)]
+        if B >= SCHEDULE_PROCESS_MIN_BATCH and cpus >= SCHEDULE_PROCESS_MIN_CPUS:
+            workers = min(SCHEDULE_THREADS, cpus)
+            if self._schedule_pool is None:
+                self._schedule_pool = ProcessPoolExecutor(
+                    workers, mp_context=multiprocessing.get_context("spawn"),
+                    initializer=_init_schedule_worker, initargs=(self.cfg, self._boundary))
+            try:
+                return list(self._schedule_pool.map(_schedule_in_worker, jobs, chunksize=max(1, B // (4 * workers))))
+            except BrokenProcessPool as e:  # a worker died: the batch goes on in this process
+                log.warning("schedule workers failed (%s): computing this batch's schedules on threads", e)
+                self._schedule_pool = None
+        workers = min(SCHEDULE_THREADS, cpus, max(1, B // 4))
+        one = lambda job: schedule_trajectory(self.cfg, self._boundary, *job)  # noqa: E731
+        if workers > 1:
+            with ThreadPoolExecutor(workers) as pool:
+                return list(pool.map(one, jobs))
+        return [one(job) for job in jobs]
 
     def start_obstacles(self, world: str, starts: np.ndarray, plant_jitter: np.ndarray | None = None) -> list[str | None]:
         """Per start pose (x, y[, theta]): the obstacle the cup would overlap there (what :meth:`run` refuses),
@@ -103,8 +169,7 @@ class PouringExecutor:
 
     def _obstacles(self, spec) -> Obstacles:
         """The scene's bodies other than the controlled cup, inside the tank's interior."""
-        lo, hi = np.full(2, self.cfg.floor), np.asarray(self.cfg.sim["domain"], float) - self.cfg.floor
-        return Obstacles(spec.bodies[1:], lo, hi)
+        return scene_obstacles(self.cfg, spec.bodies[1:])
 
     def run(self, world: str, starts: np.ndarray, actions: Sequence[Sequence[Sequence[float]]],
             plant_jitter: np.ndarray | None = None, goals: Sequence[float] | None = None,
@@ -138,25 +203,10 @@ class PouringExecutor:
         acts = validate_actions(cfg, actions)
         specs = [cfg.scene(world, starts[b], jit[b]) for b in range(B)]
 
-        # --- kinematic schedules with contact (numpy, before any simulation). Threads: numpy releases
-        #     the GIL in its array loops, and a GPU batch of thousands would otherwise wait on one core.
+        # --- kinematic schedules with contact (numpy, before any simulation; a GPU batch of thousands
+        #     would otherwise wait on one core)
         t0 = time.perf_counter()
-
-        def schedule(b: int) -> Schedule:
-            obst = self._obstacles(specs[b])
-            name = start_overlap(obst, self._boundary, starts[b])
-            if name is not None:
-                raise ValueError(f"starts[{b}] = {starts[b].tolist()}: the cup overlaps the {name} there; "
-                                 f"choose a start pose clear of every obstacle")
-            return plan_schedule(cfg, starts[b], acts[b], obst, self._boundary)
-
-        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        workers = min(SCHEDULE_THREADS, cpus, max(1, B // 4))
-        if workers > 1:
-            with ThreadPoolExecutor(workers) as pool:
-                scheds = list(pool.map(schedule, range(B)))  # in order: the first bad start raises first
-        else:
-            scheds = [schedule(b) for b in range(B)]
+        scheds = self._schedules(specs, starts, acts)
         K = max(len(s.poses) for s in scheds) - 1
         poses = np.stack([np.concatenate([s.poses, np.repeat(s.poses[-1:], K + 1 - len(s.poses), 0)])
                           for s in scheds])  # (B, K + 1, 3)

@@ -221,6 +221,36 @@ def test_start_obstacles_names_what_run_refuses(cfg):
     assert ex._solvers == {}
 
 
+def test_schedules_from_worker_processes_equal_the_threads_ones(cfg, monkeypatch):
+    """Large batches compute their cup schedules in spawned processes (GPU boxes): the same schedules,
+    in order, and a start inside an obstacle is refused the same way."""
+    import sim.execute as execute
+    from sim.skills import random_actions, validate_actions
+
+    rng = np.random.default_rng(4)
+    probs = sample_problems(cfg, 12, 4)
+    starts = np.array([p.start[:3] for p in probs])
+    specs = [cfg.scene("target", s, p.plant_jitter) for s, p in zip(starts, probs)]
+    acts = validate_actions(cfg, [random_actions(cfg, 4, rng) for _ in probs])
+    ex = PouringExecutor(cfg)
+    threads = ex._schedules(specs, starts, acts)
+    monkeypatch.setattr(execute, "SCHEDULE_PROCESS_MIN_BATCH", 4)
+    monkeypatch.setattr(execute, "SCHEDULE_PROCESS_MIN_CPUS", 1)
+    try:
+        procs = ex._schedules(specs, starts, acts)
+        assert ex._schedule_pool is not None  # the process path ran
+        for a, b in zip(threads, procs):
+            np.testing.assert_array_equal(a.poses, b.poses)
+            assert (a.action_end, a.executed, a.stuck_on, a.blocked) == (b.action_end, b.executed, b.stuck_on, b.blocked)
+        bad = starts.copy()
+        bad[5] = [0.30, 0.10, 0.0]  # inside the target cup
+        with pytest.raises(ValueError, match=r"starts\[5\].*overlaps the target body"):
+            ex._schedules([cfg.scene("target", s, p.plant_jitter) for s, p in zip(bad, probs)], bad, acts)
+    finally:
+        ex.close()
+    assert ex._schedule_pool is None
+
+
 def test_actions_come_back_as_executed_on_the_lattice(cfg):
     """A move target is returned rounded to ``skills.lattice``, where the cup really goes, so a recorded
     transition pairs the outcome with the action that produced it; pours and continuous worlds are untouched."""
