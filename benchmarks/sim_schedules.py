@@ -22,6 +22,7 @@ from typing import Sequence
 import numpy as np
 
 from benchmarks._cli import report
+from planner.pool import available_cpus
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -48,9 +49,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     starts = np.array([p.start[:3] for p in probs])
     specs = [cfg.scene("target", s, p.plant_jitter) for s, p in zip(starts, probs)]
     acts = validate_actions(cfg, [random_actions(cfg, args.actions, rng) for _ in probs])
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    cpus = available_cpus()
     workers = args.workers or min(execute.SCHEDULE_THREADS, cpus)
-    execute.SCHEDULE_THREADS = workers
 
     ex = PouringExecutor(cfg)
     ways = {
