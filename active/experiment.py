@@ -44,6 +44,10 @@ class ExperimentConfig:
     #: tolerance). Smaller aims plans at the middle of the goal band, so that the executed pour, which
     #: scatters about the prediction, still lands inside the protocol's tolerance (not changed by this)
     plan_goal_tol: float | None = None
+    #: with a narrower plan_goal_tol: when the planner's budget runs out without a plan within plan_goal_tol, it
+    #: returns the plan whose predicted end is closest to the goal within this band (null: no such fallback).
+    #: So the aim costs no plans that the wider band finds (at most world.problems.tolerance)
+    plan_accept_tol: float | None = None
     #: the planner accepts a predicted end state whose spill is at most this (null: the world's max_spill).
     #: Smaller keeps a margin for pours that spill more than the model predicts (the precondition's d_max
     #: admits deviations several times the spill limit); success is always judged with world.problems.max_spill
@@ -94,6 +98,9 @@ class ExperimentConfig:
         if self.plan_goal_tol is not None and not 0 < self.plan_goal_tol <= 1:
             raise ValueError(f"experiment.plan_goal_tol = {self.plan_goal_tol!r}: allowed null or a fraction in (0, 1] "
                              f"(at most world.problems.tolerance)")
+        if self.plan_accept_tol is not None and not (self.plan_goal_tol or 0) <= self.plan_accept_tol <= 1:
+            raise ValueError(f"experiment.plan_accept_tol = {self.plan_accept_tol!r}: allowed null or a fraction from "
+                             f"experiment.plan_goal_tol ({self.plan_goal_tol}) to world.problems.tolerance")
         if self.plan_spill_limit is not None and not 0 <= self.plan_spill_limit <= 1:
             raise ValueError(f"experiment.plan_spill_limit = {self.plan_spill_limit!r}: allowed null or a fraction "
                              f"in [0, 1] (at most world.problems.max_spill)")

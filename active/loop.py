@@ -126,7 +126,7 @@ def _changed_method_specs(c: Mapping[str, Any]) -> dict:
 
 #: experiment keys added after runs existed, with the value that changes nothing: left out of the digest
 #: so that a directory written before the key existed still resumes
-NEUTRAL_EXPERIMENT_SETTINGS = {"plan_goal_tol": None, "plan_spill_limit": None}
+NEUTRAL_EXPERIMENT_SETTINGS = {"plan_goal_tol": None, "plan_spill_limit": None, "plan_accept_tol": None}
 #: the same for the MDE's keys
 NEUTRAL_MDE_SETTINGS = {"lengthscale_max": None, "latent_std_min": None, "label_max": None,
                         "noise_lengthscale_max": None}
@@ -178,6 +178,7 @@ NOT_RUN_SETTINGS = {
     "beta": "experiment.beta_train / experiment.beta_test (passed with every planning call)",
     "seed": "the run's seed (every planning call derives its own)",
     "goal_tol": "experiment.plan_goal_tol (null: world.problems.tolerance)",
+    "accept_tol": "experiment.plan_accept_tol (null: no fallback band)",
     "move_lattice": "world.skills.lattice (absent: 0, continuous move targets)",
 }
 
@@ -187,7 +188,8 @@ def build_planner_config(world: WorldConfig, planner: Mapping[str, Any], exp: Ex
 
     The keys of :data:`DERIVED_PLANNER_KEYS` must equal their source (the YAML interpolates them; an
     absent one is taken from the source); the goal band is ``experiment.plan_goal_tol`` or the world's
-    tolerance, the spill limit ``experiment.plan_spill_limit`` or the world's ``max_spill``. Unknown keys and :data:`NOT_RUN_SETTINGS` are refused, naming the allowed keys.
+    tolerance, its fallback band ``experiment.plan_accept_tol``, the spill limit ``experiment.plan_spill_limit`` or
+    the world's ``max_spill``. Unknown keys and :data:`NOT_RUN_SETTINGS` are refused, naming the allowed keys.
     ``planner.workers`` is validated here but is not a :class:`PlannerConfig` field (it says where plans
     are computed, not what they are): see :func:`planner_workers`.
     """
@@ -212,6 +214,11 @@ def build_planner_config(world: WorldConfig, planner: Mapping[str, Any], exp: Ex
                              f"{src}'s (configs/planner/default.yaml interpolates it); set {src} instead")
     d["goal_tol"] = _planner_bound(world, exp, "plan_goal_tol", "tolerance", "(")
     d["spill_limit"] = _planner_bound(world, exp, "plan_spill_limit", "max_spill", "[")
+    if exp.plan_accept_tol is not None:
+        d["accept_tol"] = _planner_bound(world, exp, "plan_accept_tol", "tolerance", "(")
+        if d["accept_tol"] < d["goal_tol"]:
+            raise ValueError(f"experiment.plan_accept_tol = {exp.plan_accept_tol}: allowed [{d['goal_tol']}, "
+                             f"{world.problems['tolerance']}] (from the planner's goal band to the world's tolerance)")
     d["move_lattice"] = float(world.skills.get("lattice", 0.0))
     return PlannerConfig.from_dict(d)
 

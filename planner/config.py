@@ -59,6 +59,11 @@ class PlannerConfig:
     p_move: float = 0.5
     max_actions: int = 6
     goal_tol: float = 0.05
+    #: None: a plan must end within ``goal_tol`` of the goal. A band wider than ``goal_tol`` (the world's
+    #: tolerance when ``goal_tol`` aims at the band's middle): the search still stops at the first state
+    #: within ``goal_tol``, but when the budget runs out without one, the plan to the tree state closest to
+    #: the goal within ``accept_tol`` is returned (the plan the wide band would have found, more centred)
+    accept_tol: float | None = None
     spill_limit: float = 0.02
     #: precondition mu + beta * sigma < d_max; defaults are the paper's test-time values,
     #: every planning call may override them (the experiment passes beta, d_max, n and seed per call,
@@ -135,6 +140,8 @@ class PlannerConfig:
             raise ValueError(f"max_actions={self.max_actions} must be >= 1")
         if not self.goal_tol > 0:
             raise ValueError(f"goal_tol={self.goal_tol} must be > 0")
+        if self.accept_tol is not None and not self.accept_tol >= self.goal_tol:
+            raise ValueError(f"accept_tol={self.accept_tol}: allowed None or >= goal_tol={self.goal_tol}")
         if not self.stuck_tilt > 0:
             raise ValueError(f"stuck_tilt={self.stuck_tilt} must be > 0 rad")
         if not self.stuck_move > 0:

@@ -69,6 +69,7 @@ class PlannerStats:
     the precondition;
     ``expansions``: OMPL propagator calls (tree-extension attempts); ``tree_size``: tree nodes
     including the start; ``termination``: "solved", "trivial" (start already satisfies the goal),
+    "accepted" (no state within ``goal_tol`` was reached, the plan ends in the wider ``accept_tol`` band),
     "propagation_budget", "time_budget", "exhausted" (no node can be expanded any more) or
     "unreachable" (the start is a dead state: spill above the limit, too much water in the
     target cup or too little left; only with ``prune_dead_states``) or "error" (the run raised and

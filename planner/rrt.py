@@ -170,6 +170,8 @@ class _Search:
         self.ev = evaluator
         self.c = config
         self.g, self.tol, self.beta, self.d_max = g, tol, beta, d_max
+        # the band a fallback plan may end in (>= the aimed band): dead-state pruning and the last step use it
+        self.accept_tol = tol if config.accept_tol is None else max(tol, float(config.accept_tol))
         self.rng = rng
         self.sampler = evaluator.sampler
         self.budget = int(propagation_budget)
@@ -333,7 +335,8 @@ class _Search:
             if stuck is not None:  # the simulator ends a trajectory at its first contact
                 ok &= ~stuck
         if self.depth[pid] + 1 >= self.c.max_actions:
-            ok &= at_goal  # a child at the depth limit is useless unless it is a goal
+            # a child at the depth limit is useless unless it is a goal (or, with a fallback band, in it)
+            ok &= at_goal if self.accept_tol == self.tol else self._accepted(nxt)
         idx = np.flatnonzero(ok)
         mu = np.zeros(idx.size)
         sd = np.zeros(idx.size)
@@ -356,9 +359,9 @@ class _Search:
         precede a goal state; nor can a cup left tilted (stuck mid-pour, |theta| > stuck_tilt).
         Keeping such states out of the tree saves most of the search.
         """
-        vc, vt = states[:, 3], states[:, 4]
-        return ((1.0 - vc - vt > self.c.spill_limit) | (vt > self.g + self.tol)
-                | (vc + vt < self.g - self.tol) | (np.abs(states[:, 2]) > self.c.stuck_tilt))
+        vc, vt, tol = states[:, 3], states[:, 4], self.accept_tol
+        return ((1.0 - vc - vt > self.c.spill_limit) | (vt > self.g + tol)
+                | (vc + vt < self.g - tol) | (np.abs(states[:, 2]) > self.c.stuck_tilt))
 
     def _stuck_move(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """Moves predicted to stop short of their target (stuck on the way): the trajectory would end there."""
@@ -374,6 +377,21 @@ class _Search:
         """
         d = goal_distance(states, self.g, self.tol, self.c.spill_limit)
         return np.where(d > 0.0, np.maximum(d, 2 * _GOAL_EPS), 0.0)
+
+    def _accepted(self, states: np.ndarray) -> np.ndarray:
+        """Whether states end a plan within the fallback band ``accept_tol`` (spill within the limit)."""
+        return goal_distance(states, self.g, self.accept_tol, self.c.spill_limit) <= 0.0
+
+    def fallback_node(self) -> int | None:
+        """The tree node within ``accept_tol`` whose v_tgt is closest to the goal; None when there is no wider
+        band or no node in it. Ties go to the node added first (deterministic)."""
+        if self.accept_tol == self.tol:
+            return None
+        S = self.S[: self.n]
+        ok = np.flatnonzero(self._accepted(S))
+        if not ok.size:
+            return None
+        return int(ok[np.argmin(np.abs(S[ok, 4] - self.g))])
 
     def _add_node(self, pid: int, q: _Queue, i: int) -> int:
         nid = self.n
@@ -563,8 +581,12 @@ class Planner:
         if search.error is not None:
             raise search.error
         found = goal_node is not None
+        if not found and search.error is None:
+            goal_node = search.fallback_node()  # the search ended without a centred plan: the best in the wide band
         if found:
             termination = "solved"
+        elif goal_node is not None:
+            found, termination = True, "accepted"
         elif search.rows >= search.budget:
             termination = "propagation_budget"
         elif search.timed_out:

@@ -53,7 +53,7 @@ EXPERIMENT_ALTERNATIVES = {
     "candidates": 3, "test_problems": 3, "random_actions_length": 3, "d_max": 0.05, "beta_train": [-1.0, 0.5],
     "beta_switch_iteration": 2, "beta_test": 1.5, "calibration_trajectories": 3, "planner_propagation_budget": 1234,
     "planner_time_budget": 5.0, "known_obstacles": False, "refine_steps": 2, "refine_lr": 0.01, "plan_goal_tol": 0.03,
-    "plan_spill_limit": 0.01,
+    "plan_spill_limit": 0.01, "plan_accept_tol": 0.05,
 }
 
 
@@ -176,6 +176,12 @@ def test_documented_overrides_arrive():
     assert settings([])[2].goal_tol == 0.05  # null: the world's tolerance
     assert settings(["experiment.plan_spill_limit=0.01"])[2].spill_limit == 0.01  # BENCHMARKS: session 17
     assert settings([])[2].spill_limit == 0.02  # null: the world's max_spill
+    pc = settings(["experiment.plan_goal_tol=0.02", "experiment.plan_accept_tol=0.05"])[2]  # BENCHMARKS: session 21
+    assert (pc.goal_tol, pc.accept_tol) == (0.02, 0.05) and settings([])[2].accept_tol is None
+    with pytest.raises(ValueError, match=r"experiment.plan_accept_tol = 0.06: allowed \(0, 0.05\]"):
+        settings(["experiment.plan_accept_tol=0.06"])
+    with pytest.raises(ValueError, match=r"experiment.plan_accept_tol = 0.01: allowed"):
+        settings(["experiment.plan_goal_tol=0.02", "experiment.plan_accept_tol=0.01"])
     leaf = settings(["world.plant.leaves.0.center=[0.065,0.26]"])[1].plant["leaves"][0]  # README: a higher leaf
     assert list(leaf["center"]) == [0.065, 0.26] and list(leaf["radii"]) == [0.065, 0.007]
     with pytest.raises(ValueError, match=r"experiment.plan_spill_limit = 0.03: allowed \[0, 0.02\]"):

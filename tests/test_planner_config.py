@@ -19,14 +19,15 @@ YAML = Path(__file__).resolve().parents[1] / "configs" / "planner" / "default.ya
 
 def test_yaml_mirrors_dataclass_defaults():
     """Planner-only keys mirror the defaults; the task's and the protocol's are interpolated (world, experiment:
-    tests/test_config_overrides.py); beta, seed and goal_tol come with the run's planning calls."""
+    tests/test_config_overrides.py); beta, seed and goal_tol come with the run's planning calls, accept_tol from
+    experiment.plan_accept_tol."""
     d = yaml.safe_load(YAML.read_text())
     assert d.pop("workers") == "auto"  # process count of planner.pool, deliberately not a PlannerConfig field
     derived = {k for k, v in d.items() if isinstance(v, str) and v.startswith("${")}
     assert derived == {"move_x", "move_y", "pour_theta", "pour_hold", "max_actions", "spill_limit", "d_max",
                        "n_candidates", "time_budget", "propagation_budget"}
     default = PlannerConfig().to_dict()
-    assert set(default) - set(d) == {"beta", "seed", "goal_tol", "move_lattice"}
+    assert set(default) - set(d) == {"beta", "seed", "goal_tol", "accept_tol", "move_lattice"}
     # the run's state box reaches the world's move range (y up to 0.36 m); the library's default moves stop at 0.35
     assert d.pop("state_high") == [0.55, 0.36, 2.4, 1.0, 1.0] and default["state_high"] == [0.55, 0.35, 2.4, 1.0, 1.0]
     assert {k: v for k, v in d.items() if k not in derived} == {k: v for k, v in default.items()

@@ -146,6 +146,29 @@ def test_propagation_budget_is_exact():
     assert robot.rows == 1500
 
 
+def test_a_centred_aim_falls_back_to_the_most_centred_plan_of_the_wide_band(toy):
+    """accept_tol: when no state within the aimed goal_tol is reached, the plan to the tree state closest
+    to the goal inside the wider band is returned (deterministically); without it nothing is found."""
+    robot, mde = toy
+    aim, wide = 1e-7, 0.05  # an aim no continuous sample hits
+    kw = dict(tol=aim, beta=BETA, d_max=D_MAX, propagation_budget=3000, seed=0)
+    assert not Planner(robot, mde, PlannerConfig(time_budget=30.0)).plan(START, GOAL, **kw).found
+    planner = Planner(robot, mde, PlannerConfig(time_budget=30.0, accept_tol=wide))
+    r = planner.plan(START, GOAL, **kw)
+    assert r.found and r.stats.termination == "accepted" and r.stats.propagations == 3000
+    final = r.trajectory.final_state
+    assert goal_reached(final, GOAL, wide, planner.config.spill_limit)
+    assert not goal_reached(final, GOAL, aim, planner.config.spill_limit)
+    assert np.all(r.trajectory.mu + BETA * r.trajectory.sigma < D_MAX)
+    again = planner.plan(START, GOAL, **kw)
+    np.testing.assert_array_equal(again.trajectory.actions, r.trajectory.actions)
+    # an aim that is reached ends the search as before
+    hit = planner.plan(START, GOAL, tol=0.05, beta=BETA, d_max=D_MAX, seed=0)
+    assert hit.found and hit.stats.termination == "solved"
+    with pytest.raises(ValueError, match="accept_tol"):
+        PlannerConfig(goal_tol=0.05, accept_tol=0.02)
+
+
 def test_trivial_problem_returns_empty_plan(toy):
     robot, mde = toy
     s = np.array([0.1, 0.1, 0.0, 0.5, 0.5])
