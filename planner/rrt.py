@@ -170,7 +170,8 @@ class _Search:
         self.ev = evaluator
         self.c = config
         self.g, self.tol, self.beta, self.d_max = g, tol, beta, d_max
-        # the band a fallback plan may end in (>= the aimed band): dead-state pruning and the last step use it
+        # the band a fallback plan may end in (>= the aimed band): dead-state pruning, the last step and the
+        # order of the proposal queues use it
         self.accept_tol = tol if config.accept_tol is None else max(tol, float(config.accept_tol))
         self.rng = rng
         self.sampler = evaluator.sampler
@@ -347,7 +348,12 @@ class _Search:
             self.rejected += int(idx.size - np.count_nonzero(pre))
             idx, mu, sd = idx[pre], mu[pre], sd[pre]
         if idx.size:
-            order = np.argsort(~at_goal[idx], kind="stable")  # goal hits first
+            # goal hits first; then, with a fallback band, its hits, so that they enter the tree at the node's
+            # next extension, as they would as goals of the wide band: the run finds whatever the wide band finds
+            rank = (~at_goal[idx]).astype(np.int8)
+            if self.accept_tol != self.tol:
+                rank += ~self._accepted(nxt[idx])
+            order = np.argsort(rank, kind="stable")
             idx, mu, sd = idx[order], mu[order], sd[order]
         return _Queue(nxt[idx], acts[idx], mu, sd, k, total + k)
 

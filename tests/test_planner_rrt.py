@@ -162,6 +162,16 @@ def test_a_centred_aim_falls_back_to_the_most_centred_plan_of_the_wide_band(toy)
     assert np.all(r.trajectory.mu + BETA * r.trajectory.sigma < D_MAX)
     again = planner.plan(START, GOAL, **kw)
     np.testing.assert_array_equal(again.trajectory.actions, r.trajectory.actions)
+    # up to the wide band's first hit both searches grow the same tree, so the fallback finds whatever the
+    # wide band finds with the same budget, and ends at least as close to the goal
+    for seed in range(4):
+        kw.update(seed=seed, propagation_budget=1500)
+        wide_only = Planner(robot, mde, PlannerConfig(time_budget=30.0)).plan(START, GOAL, **{**kw, "tol": wide})
+        aimed = planner.plan(START, GOAL, **kw)
+        assert aimed.found == wide_only.found
+        if wide_only.found:
+            err = [abs(p.trajectory.final_state[4] - GOAL) for p in (aimed, wide_only)]
+            assert err[0] <= err[1]
     # an aim that is reached ends the search as before
     hit = planner.plan(START, GOAL, tol=0.05, beta=BETA, d_max=D_MAX, seed=0)
     assert hit.found and hit.stats.termination == "solved"
