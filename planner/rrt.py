@@ -331,13 +331,14 @@ class _Search:
         else:
             ok &= np.all((nxt >= self.lo) & (nxt <= self.hi), axis=1)
         at_goal = self._goal_dist(nxt) <= 0.0
+        at_accept = at_goal if self.accept_tol == self.tol else self._accepted(nxt)  # the fallback band's hits
         if self.c.prune_dead_states:
             ok &= ~self._dead(nxt) & ~self._stuck_move(nxt, acts)
             if stuck is not None:  # the simulator ends a trajectory at its first contact
                 ok &= ~stuck
         if self.depth[pid] + 1 >= self.c.max_actions:
             # a child at the depth limit is useless unless it is a goal (or, with a fallback band, in it)
-            ok &= at_goal if self.accept_tol == self.tol else self._accepted(nxt)
+            ok &= at_accept
         idx = np.flatnonzero(ok)
         mu = np.zeros(idx.size)
         sd = np.zeros(idx.size)
@@ -350,10 +351,7 @@ class _Search:
         if idx.size:
             # goal hits first; then, with a fallback band, its hits, so that they enter the tree at the node's
             # next extension, as they would as goals of the wide band: the run finds whatever the wide band finds
-            rank = (~at_goal[idx]).astype(np.int8)
-            if self.accept_tol != self.tol:
-                rank += ~self._accepted(nxt[idx])
-            order = np.argsort(rank, kind="stable")
+            order = np.argsort((~at_goal[idx]).astype(np.int8) + ~at_accept[idx], kind="stable")
             idx, mu, sd = idx[order], mu[order], sd[order]
         return _Queue(nxt[idx], acts[idx], mu, sd, k, total + k)
 
@@ -587,7 +585,7 @@ class Planner:
         if search.error is not None:
             raise search.error
         found = goal_node is not None
-        if not found and search.error is None:
+        if not found:
             goal_node = search.fallback_node()  # the search ended without a centred plan: the best in the wide band
         if found:
             termination = "solved"
