@@ -318,17 +318,33 @@ def check_ceiling(ceiling: Mapping[str, Any], where: str = "ceiling") -> dict:
     return c
 
 
+def _sets(ceiling: Mapping[str, Any]) -> int:
+    """How many training sets the ceiling is the mean of (``--ceiling-seeds``); 1 for a single set."""
+    seeds = ceiling.get("seeds")
+    return len(seeds) if isinstance(seeds, (list, tuple)) else 1
+
+
 def ceiling_label(ceiling: Mapping[str, Any]) -> str:
     n = ceiling.get("train_trajectories")
-    return f"ceiling (MDE on {n} trajectories)" if n is not None else "ceiling (MDE on target-world data)"
+    what = f"MDE on {n} trajectories" if n is not None else "MDE on target-world data"
+    sets = _sets(ceiling)
+    return f"ceiling ({what}, mean of {sets} sets)" if sets > 1 else f"ceiling ({what})"
 
 
 def ceiling_line(ceiling: Mapping[str, Any], source: str | None = None) -> str:
-    """One sentence for summary.md: the ceiling's rates and where they come from."""
+    """One sentence for summary.md: the ceiling's rates and where they come from (with several training
+    sets, their mean and range: one set moves the ceiling by more than the methods differ)."""
     n = ceiling.get("train_trajectories")
     fit = f"MDE fitted on {n} target-world trajectories" if n is not None else "MDE fitted on target-world data"
     n_test = f" on {ceiling['n']} test problems" if ceiling.get("n") is not None else ""
     src = f", {source}" if source else ""
+    sets = _sets(ceiling)
+    if sets > 1:
+        ranges = {k: ceiling.get(f"{k}_range") for k in ("success", "found")}
+        spread = "".join(f", {k} {float(r[0]):.2f}-{float(r[1]):.2f}" for k, r in ranges.items()
+                         if isinstance(r, (list, tuple)) and len(r) == 2)
+        return (f"Ceiling ({fit}{src}; the mean of {sets} training sets, each{n_test}{spread}): "
+                f"test success {float(ceiling['success']):.3f}, plan found {float(ceiling['found']):.3f}.")
     return (f"Ceiling ({fit}{src}): test success {float(ceiling['success']):.3f}, "
             f"plan found {float(ceiling['found']):.3f}{n_test}.")
 
