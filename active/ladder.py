@@ -284,7 +284,6 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
     problems (saved to ``DIR/ceiling_train_seed<s>.npz``, or read from the matching ``ceiling_data``
     file), and reports the mean, the range and each set's record (``per_seed``): one training set moves
     the ceiling from 0.00 to 0.60 (BENCHMARKS.md, session 15). None: the config's seed only."""
-    import dynamics
     from hydra.utils import instantiate
     from sim.execute import PouringExecutor
     from sim.world import WorldConfig
@@ -294,7 +293,7 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
     from .experiment import ExperimentConfig
     from planner.pool import PlanPool
 
-    from .loop import build_planner_config, planner_workers
+    from .loop import build_planner_config, planner_workers, planning_dynamics
 
     unknown = sorted(set(rungs) - set(RUNGS))
     if unknown:
@@ -332,9 +331,7 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
             break
         t0 = time.perf_counter()
         dyn_cfg = {**cfg["dynamics"], "train": {**cfg["dynamics"]["train"], "seed": model_seed}}
-        dyn = dynamics.load_or_train(dyn_cfg, world_cfg=cfg["world"], progress=progress)
-        if exp.known_obstacles:
-            dyn = dynamics.ContactAwareDynamics(dyn, world)
+        dyn = planning_dynamics(dyn_cfg, cfg["world"], world, exp, progress)
         result.setdefault("rung_seconds", {})["dynamics" if i == 0 else f"dynamics_seed{model_seed}"] = \
             time.perf_counter() - t0
         with PlanPool(dyn, planner_cfg, workers, preload=[type(make_mde()).__module__]) as pool:

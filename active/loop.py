@@ -183,6 +183,16 @@ NOT_RUN_SETTINGS = {
 }
 
 
+def planning_dynamics(dynamics_cfg: Mapping[str, Any], world_cfg: Mapping[str, Any], world: WorldConfig,
+                      exp: ExperimentConfig, progress: bool = False) -> Any:
+    """The model the experiment plans with: the cached source-world dynamics model of ``dynamics_cfg``
+    (trained on first use), wrapped with the known static geometry when ``experiment.known_obstacles``."""
+    import dynamics  # heavy (torch models): imported where a model is needed
+
+    dyn = dynamics.load_or_train(dynamics_cfg, world_cfg=world_cfg, progress=progress)
+    return dynamics.ContactAwareDynamics(dyn, world) if exp.known_obstacles else dyn
+
+
 def build_planner_config(world: WorldConfig, planner: Mapping[str, Any], exp: ExperimentConfig) -> PlannerConfig:
     """The run's :class:`PlannerConfig` from the ``planner:`` block, checked against world and experiment.
 

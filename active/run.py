@@ -54,7 +54,6 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     import torch
     from hydra.utils import instantiate
 
-    import dynamics
     from planner import ActionSampler
     from planner.pool import PlanPool
     from sim.execute import PouringExecutor
@@ -63,6 +62,7 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     from .io import write_json
     from .lockstep import run_lockstep
     from .loop import Context, MethodRun, acquisition_factory, check_method_acquisition, derive_seed, make_calibration_set
+    from .loop import planning_dynamics
     from .methods import build_method
     from .preflight import check_dynamics, check_writable
     from .report import report
@@ -110,9 +110,7 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
 
         # ---- shared pieces: dynamics model (cached by config hash), simulator, problems, held-out data
         log.info("dynamics model: loading from cache or training (source world only)")
-        dyn = dynamics.load_or_train(cfg["dynamics"], world_cfg=cfg["world"], progress=progress)
-        if exp.known_obstacles:
-            dyn = dynamics.ContactAwareDynamics(dyn, world)
+        dyn = planning_dynamics(cfg["dynamics"], cfg["world"], world, exp, progress)
         executor = PouringExecutor(world)
         for s in seeds:
             if calibrations[s] is None:

@@ -52,10 +52,9 @@ def main(argv: list[str] | None = None) -> dict:
 
     import torch
 
-    import dynamics
     from active.experiment import ExperimentConfig
     from active.ladder import execute_plans, plan_all
-    from active.loop import build_planner_config, derive_seed, planner_workers
+    from active.loop import build_planner_config, derive_seed, planner_workers, planning_dynamics
     from active.run import compose_config
     from planner.pool import PlanPool
     from sim.execute import PouringExecutor
@@ -66,9 +65,7 @@ def main(argv: list[str] | None = None) -> dict:
     cfg = compose_config(list(args.overrides) + ["progress=false"])
     exp = ExperimentConfig.from_mapping(cfg["experiment"])
     world = WorldConfig.from_mapping(cfg["world"])
-    dyn = dynamics.load_or_train(cfg["dynamics"], world_cfg=cfg["world"], progress=False)
-    if exp.known_obstacles:
-        dyn = dynamics.ContactAwareDynamics(dyn, world)
+    dyn = planning_dynamics(cfg["dynamics"], cfg["world"], world, exp)
     seed = int(cfg.get("seed", 0))
     problems = sample_problems(world, args.problems, derive_seed(seed, "ladder-problems", args.world), world=args.world)
     with PlanPool(dyn, build_planner_config(world, cfg["planner"], exp), planner_workers(cfg["planner"])) as pool:

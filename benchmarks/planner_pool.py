@@ -58,9 +58,8 @@ def fingerprint(r: Any) -> Any:
 
 def experiment_batches(cfg: dict, seed: int, iteration: int) -> tuple[Any, Any, dict[str, list[PlanRequest]], dict]:
     """Dynamics model, planner config and the two request batches exactly as ``active.run`` builds them."""
-    import dynamics
     from active.experiment import ExperimentConfig
-    from active.loop import build_planner_config, derive_seed
+    from active.loop import build_planner_config, derive_seed, planning_dynamics
     from sim.problems import sample_problems
     from sim.world import WorldConfig
 
@@ -68,10 +67,8 @@ def experiment_batches(cfg: dict, seed: int, iteration: int) -> tuple[Any, Any, 
     world = WorldConfig.from_mapping(cfg["world"])
     planner_cfg = build_planner_config(world, cfg["planner"], exp)
     t = time.perf_counter()
-    dyn = dynamics.load_or_train(cfg["dynamics"], world_cfg=cfg["world"], progress=False)
+    dyn = planning_dynamics(cfg["dynamics"], cfg["world"], world, exp)
     info = {"load_s": time.perf_counter() - t, "known_obstacles": exp.known_obstacles}
-    if exp.known_obstacles:
-        dyn = dynamics.ContactAwareDynamics(dyn, world)
     test = sample_problems(world, exp.test_problems, derive_seed(seed, "test"), world="target")
     train = sample_problems(world, exp.trajectories_per_iteration, derive_seed(seed, "train", iteration),
                             world="target")[:exp.refit_every]

@@ -30,14 +30,13 @@ def _last_checkpoint(folder: Path) -> Path | None:
 
 def run_check(run_dir: Path, method: str | None, steps: int, lr: float, world_name: str, n_problems: int | None,
               use_mde: bool, progress: bool = True) -> dict:
-    import dynamics
     import mde as mde_pkg
     from planner import Planner
     from sim.problems import sample_problems
     from sim.world import WorldConfig, check_world
 
     from active.experiment import ExperimentConfig
-    from active.loop import build_planner_config, derive_seed
+    from active.loop import build_planner_config, derive_seed, planning_dynamics
     from active.refine import refine_plans
     from active.rundir import upgrade_config
 
@@ -60,9 +59,7 @@ def run_check(run_dir: Path, method: str | None, steps: int, lr: float, world_na
         mde = mde_pkg.load(ckpt)
     world = WorldConfig.from_mapping(cfg["world"])
     planner_cfg = build_planner_config(world, cfg["planner"], exp)
-    dyn = dynamics.load_or_train(cfg["dynamics"], world_cfg=cfg["world"], progress=progress)
-    if exp.known_obstacles:
-        dyn = dynamics.ContactAwareDynamics(dyn, world)
+    dyn = planning_dynamics(cfg["dynamics"], cfg["world"], world, exp, progress)
     seed = int(cfg["seed"])
     n = n_problems or exp.test_problems
     problems = sample_problems(world, n, derive_seed(seed, "test"), world="target")

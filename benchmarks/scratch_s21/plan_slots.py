@@ -26,10 +26,9 @@ def main() -> None:
     ap.add_argument("overrides", nargs="*")
     args = ap.parse_args()
 
-    import dynamics
     from active.experiment import ExperimentConfig
     from active.ladder import plan_all
-    from active.loop import build_planner_config, derive_seed
+    from active.loop import build_planner_config, derive_seed, planning_dynamics
     from active.run import compose_config
     from planner.pool import PlanPool
     from sim.execute import PouringExecutor
@@ -41,9 +40,7 @@ def main() -> None:
     world = WorldConfig.from_mapping(cfg["world"])
     tol, lim = world.problems["tolerance"], world.problems["max_spill"]
     seed = int(cfg.get("seed", 0))
-    dyn = dynamics.load_or_train(cfg["dynamics"], world_cfg=cfg["world"], progress=False)
-    if exp.known_obstacles:
-        dyn = dynamics.ContactAwareDynamics(dyn, world)
+    dyn = planning_dynamics(cfg["dynamics"], cfg["world"], world, exp)
     executor = PouringExecutor(world)
     S = args.slots
     t0 = time.perf_counter()
