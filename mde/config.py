@@ -16,6 +16,7 @@ from typing import Any, Mapping
 ALLOWED_NU = (0.5, 1.5, 2.5)
 ALLOWED_INPUT_SCALING = ("none", "normalize")
 ALLOWED_PREDICT_DTYPE = ("float32", "float64")
+ALLOWED_PRIORS = ("none", "gamma")
 
 #: Keys a Hydra node may carry that are not MDE settings.
 _HYDRA_KEYS = ("_target_", "_recursive_", "_convert_", "_partial_")
@@ -52,6 +53,13 @@ class MDEConfig:
     #: bulk below 0.07) dominate the z-scoring and push the GP either to interpolate them with tiny
     #: noise or to call every pour noise (BENCHMARKS.md, session 18). Must stay well above d_max.
     label_max: float | None = None
+    #: Hyperparameter priors of every GP (mean and log-noise): "none" (maximum likelihood) or "gamma"
+    #: (BoTorch's SingleTaskGP defaults until 0.12, current when the paper was written: lengthscale
+    #: Gamma(3, 6) in the kernel's input units, outputscale Gamma(2, 0.15), noise Gamma(1.1, 0.05);
+    #: the fit is then MAP). Why: free fits on the MDE's data go to lengthscales of tens of metres or
+    #: an outputscale near 0 (BENCHMARKS.md, sessions 15-17 and 22); a prior keeps them in range
+    #: softly, where ``lengthscale_max`` cuts them off.
+    hyperparameter_priors: str = "none"
     #: Most-likely heteroscedastic GP (True) or a homoscedastic GP (False, for ablation).
     heteroscedastic: bool = True
     #: "none": raw (s, a) features as in the paper; "normalize": BoTorch ``Normalize`` with the
@@ -101,6 +109,10 @@ class MDEConfig:
         if self.input_scaling not in ALLOWED_INPUT_SCALING:
             raise ValueError(
                 f"input_scaling must be one of {ALLOWED_INPUT_SCALING}, got {self.input_scaling!r}"
+            )
+        if self.hyperparameter_priors not in ALLOWED_PRIORS:
+            raise ValueError(
+                f"hyperparameter_priors must be one of {ALLOWED_PRIORS}, got {self.hyperparameter_priors!r}"
             )
         if self.predict_dtype not in ALLOWED_PREDICT_DTYPE:
             raise ValueError(

@@ -3,9 +3,9 @@
 Why a custom loss closure: GPyTorch's exact marginal likelihood backpropagates through its
 Cholesky factorisation, which costs about three times more than the closed-form gradient
 ``dNLL/dK = (K^-1 - alpha alpha^T) / 2``. The closure below computes exactly the same objective as
-``ExactMarginalLogLikelihood`` (the models carry no hyperparameter priors) and is handed to
-BoTorch's ``fit_gpytorch_mll``, which still does the L-BFGS-B optimisation, parameter bounds and
-retries. A test checks the two objectives agree.
+``ExactMarginalLogLikelihood`` (including the log density of any hyperparameter priors the model
+carries) and is handed to BoTorch's ``fit_gpytorch_mll``, which still does the L-BFGS-B
+optimisation, parameter bounds and retries. A test checks the two objectives agree.
 """
 
 from __future__ import annotations
@@ -32,9 +32,12 @@ from gpytorch.kernels import MaternKernel, ScaleKernel
 from gpytorch.likelihoods import GaussianLikelihood
 from gpytorch.means import ConstantMean
 from gpytorch.mlls import ExactMarginalLogLikelihood
+from gpytorch.priors import GammaPrior
 from linear_operator.utils.errors import NanError, NotPSDError
 from linear_operator.operators import DiagLinearOperator
 from torch import Tensor
+
+from mde.config import ALLOWED_PRIORS
 
 DTYPE = torch.float64
 #: Box for raw hyperparameters during fitting: softplus(-25) ~ 1e-11, softplus(1e5) = 1e5.
@@ -190,7 +193,8 @@ def exact_nll(model: SingleTaskGP, jitter: float = 1e-6, max_tries: int = 4, X_t
     """Negative log marginal likelihood per point: GPyTorch's exact MLL, negated, for our models.
 
     Valid for the models built here (ARD Matern ScaleKernel, constant mean, Gaussian likelihood
-    with constant or fixed per-point noise, no hyperparameter priors).
+    with constant or fixed per-point noise). Hyperparameter priors enter as GPyTorch's MLL adds them:
+    ``-(log p(y) + sum log prior) / n``, i.e. the MAP objective.
     """
     X_t = train_inputs_transformed(model) if X_t is None else X_t
     y = model.train_targets
@@ -202,6 +206,8 @@ def exact_nll(model: SingleTaskGP, jitter: float = 1e-6, max_tries: int = 4, X_t
     nll = _MaternGPNLL.apply(
         ls, kernel.outputscale.reshape(()), noise, const, X_t, y, kernel.base_kernel.nu, jitter, max_tries
     )
+    for _, module, prior, closure, _ in model.named_priors():
+        nll = nll - prior.log_prob(closure(module)).sum()
     return nll / n
 
 
@@ -337,7 +343,8 @@ def data_bounds(X: Tensor) -> Tensor:
     return torch.stack([lo, hi])
 
 
-def _kernel(nu: float, d: int, X_t: Tensor, lengthscale_max: float | None = None) -> ScaleKernel:
+def _kernel(nu: float, d: int, X_t: Tensor, lengthscale_max: float | None = None,
+            priors: str = "none") -> ScaleKernel:
     """ARD Matern in a ScaleKernel, lengthscales initialised at twice each input's spread.
 
     Inputs are unscaled by default, so GPyTorch's fixed initial lengthscale (0.69) could be orders
@@ -347,24 +354,44 @@ def _kernel(nu: float, d: int, X_t: Tensor, lengthscale_max: float | None = None
     bound. Why: on simulator data the log-noise GP's marginal likelihood prefers a lengthscale in
     the cup's height longer than the whole move range, which smears the noise of pours that hit a
     leaf over the safe pours 3 cm below (BENCHMARKS.md, session 15).
+    ``priors="gamma"``: BoTorch's SingleTaskGP default priors before 0.12, the library the paper
+    used (``botorch.models.utils.gpytorch_modules.get_matern_kernel_with_gamma_prior``):
+    lengthscale Gamma(3, 6) in the kernel's input units (mode 1/3), outputscale Gamma(2, 0.15).
     """
+    _check_priors(priors)
     if X_t.shape[0] > 1:
         raw_std = X_t.std(dim=0)
     else:
         raw_std = torch.ones(d, dtype=DTYPE)
     varies = raw_std > 1e-6
     std = torch.where(varies, raw_std, torch.ones_like(raw_std)).to(DTYPE)
+    gamma = priors == "gamma"
+    ls_prior = GammaPrior(3.0, 6.0) if gamma else None
     if lengthscale_max is None:
-        base = MaternKernel(nu=nu, ard_num_dims=d)
+        base = MaternKernel(nu=nu, ard_num_dims=d, lengthscale_prior=ls_prior)
         start = torch.where(varies, 2.0 * std, std)  # a constant input starts at 1
     else:
         hi = lengthscale_max * std
-        base = MaternKernel(nu=nu, ard_num_dims=d, lengthscale_constraint=Interval(1e-4 * std, hi))
+        base = MaternKernel(nu=nu, ard_num_dims=d, lengthscale_prior=ls_prior,
+                            lengthscale_constraint=Interval(1e-4 * std, hi))
         start = 0.5 * hi
-    k = ScaleKernel(base).to(DTYPE)
+    k = ScaleKernel(base, outputscale_prior=GammaPrior(2.0, 0.15) if gamma else None).to(DTYPE)
     base.lengthscale = start.reshape(1, d)
     k.outputscale = torch.tensor(1.0, dtype=DTYPE)
     return k
+
+
+def _check_priors(priors: str) -> None:
+    if priors not in ALLOWED_PRIORS:
+        raise ValueError(f"hyperparameter_priors must be one of {ALLOWED_PRIORS}, got {priors!r}")
+
+
+def _likelihood(noise_floor: float, start: float, priors: str) -> GaussianLikelihood:
+    """Learned constant noise; ``priors="gamma"`` adds BoTorch's old default Gamma(1.1, 0.05) noise prior."""
+    noise_prior = GammaPrior(1.1, 0.05) if priors == "gamma" else None
+    likelihood = GaussianLikelihood(noise_prior=noise_prior, noise_constraint=GreaterThan(noise_floor)).to(DTYPE)
+    likelihood.noise = torch.tensor(start, dtype=DTYPE)
+    return likelihood
 
 
 def _input_transform(bounds: Tensor | None) -> Normalize | None:
@@ -390,6 +417,7 @@ def build_mean_gp(
     train_Yvar: Tensor | None = None,
     lengthscale_max: float | None = None,
     latent_std_min: float | None = None,
+    priors: str = "none",
 ) -> MDEGP:
     """Mean GP on deviations: z-scored labels, prior mean fixed at zero deviation.
 
@@ -397,12 +425,12 @@ def build_mean_gp(
     the noise is one learned constant (homoscedastic). ``latent_std_min`` (label units) bounds the
     outputscale below by ``(latent_std_min / label std)^2``, so that the latent std far from the
     data is at least that whatever the labels' spread (the bound is saved with the model's state).
+    ``priors``: hyperparameter priors, "none" or "gamma" (see :func:`_kernel`).
     """
     Y = y.reshape(-1, 1)
     likelihood = None
     if train_Yvar is None:
-        likelihood = GaussianLikelihood(noise_constraint=GreaterThan(noise_floor)).to(DTYPE)
-        likelihood.noise = torch.tensor(max(0.1, 2 * noise_floor), dtype=DTYPE)
+        likelihood = _likelihood(noise_floor, max(0.1, 2 * noise_floor), priors)
     with warnings.catch_warnings():
         # Unscaled inputs are the paper's choice; BoTorch warns about them.
         warnings.simplefilter("ignore", InputDataWarning)
@@ -411,7 +439,7 @@ def build_mean_gp(
             Y,
             train_Yvar=None if train_Yvar is None else train_Yvar.reshape(-1, 1),
             likelihood=likelihood,
-            covar_module=_kernel(nu, X.shape[-1], _transformed(X, bounds), lengthscale_max),
+            covar_module=_kernel(nu, X.shape[-1], _transformed(X, bounds), lengthscale_max, priors),
             mean_module=ConstantMean().to(DTYPE),
             outcome_transform=Standardize(m=1),
             input_transform=_input_transform(bounds),
@@ -430,17 +458,16 @@ def build_mean_gp(
 
 
 def build_noise_gp(X: Tensor, log_noise: Tensor, *, nu: float, bounds: Tensor | None,
-                   lengthscale_max: float | None = None) -> SingleTaskGP:
+                   lengthscale_max: float | None = None, priors: str = "none") -> SingleTaskGP:
     """GP on the log of the empirical noise variance (z-scored label units), learned mean."""
-    likelihood = GaussianLikelihood(noise_constraint=GreaterThan(1e-4)).to(DTYPE)
-    likelihood.noise = torch.tensor(0.5, dtype=DTYPE)
+    likelihood = _likelihood(1e-4, 0.5, priors)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InputDataWarning)
         model = SingleTaskGP(
             X,
             log_noise.reshape(-1, 1),
             likelihood=likelihood,
-            covar_module=_kernel(nu, X.shape[-1], _transformed(X, bounds), lengthscale_max),
+            covar_module=_kernel(nu, X.shape[-1], _transformed(X, bounds), lengthscale_max, priors),
             mean_module=ConstantMean().to(DTYPE),
             outcome_transform=Standardize(m=1),
             input_transform=_input_transform(bounds),

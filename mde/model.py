@@ -215,7 +215,7 @@ class HeteroscedasticGPMDE:
         Xf, yf = (X, y) if subset is None else (X[subset], y[subset])
         fit_kw = dict(maxiter=cfg.fit_maxiter, jitter=cfg.jitter, max_tries=cfg.max_jitter_tries)
         build_kw = dict(nu=cfg.nu, bounds=bounds, noise_floor=cfg.noise_floor, lengthscale_max=cfg.lengthscale_max,
-                        latent_std_min=cfg.latent_std_min)
+                        latent_std_min=cfg.latent_std_min, priors=cfg.hyperparameter_priors)
 
         homo = build_mean_gp(Xf, yf, **build_kw)
         homo_ml = fit_gp(homo, **fit_kw)
@@ -254,7 +254,8 @@ class HeteroscedasticGPMDE:
             try:
                 log_noise = _empirical_log_noise(current, cfg) + math.log(sigma2)  # label units
                 noise_gp = build_noise_gp(X, log_noise, nu=cfg.nu, bounds=build_kw["bounds"],
-                                          lengthscale_max=cfg.noise_lengthscale_bound)
+                                          lengthscale_max=cfg.noise_lengthscale_bound,
+                                          priors=cfg.hyperparameter_priors)
                 if prev_noise is not None:  # warm start: later iterations move little
                     noise_gp.covar_module.load_state_dict(prev_noise.covar_module.state_dict())
                     noise_gp.likelihood.load_state_dict(prev_noise.likelihood.state_dict())
@@ -422,7 +423,8 @@ class HeteroscedasticGPMDE:
         noise_model = None
         if state["noise_X"] is not None:
             noise_model = build_noise_gp(state["noise_X"], state["noise_Y"], nu=cfg.nu, bounds=bounds,
-                                         lengthscale_max=cfg.noise_lengthscale_bound)
+                                         lengthscale_max=cfg.noise_lengthscale_bound,
+                                          priors=cfg.hyperparameter_priors)
         mean_model = build_mean_gp(  # the lengthscale bounds come back with the saved state
             state["X"],
             state["y"],
@@ -432,6 +434,7 @@ class HeteroscedasticGPMDE:
             train_Yvar=state["train_Yvar"],
             lengthscale_max=cfg.lengthscale_max,
             latent_std_min=cfg.latent_std_min,
+            priors=cfg.hyperparameter_priors,
         )
         if noise_model is not None:
             mean_model.set_noise_model(noise_model)  # a submodule: its state is in mean_state
