@@ -7,6 +7,9 @@ from typing import Any, Mapping
 
 from .methods import METHODS, check_method
 
+#: what a plan-using method executes when none of a problem's candidate searches found a plan
+ALLOWED_FALLBACKS = ("random_actions", "model_plan")
+
 
 @dataclass(frozen=True)
 class ExperimentConfig:
@@ -52,6 +55,12 @@ class ExperimentConfig:
     #: Smaller keeps a margin for pours that spill more than the model predicts (the precondition's d_max
     #: admits deviations several times the spill limit); success is always judged with world.problems.max_spill
     plan_spill_limit: float | None = None
+    #: what a method that plans executes when the planner found no candidate the MDE admits:
+    #: "random_actions" (a random-action sequence, marked "fallback") or "model_plan" (a plan of the
+    #: model alone, no MDE, marked "fallback_plan"; random actions only if that finds nothing either).
+    #: Why the second: random actions mostly end in the plant, and a round with no admitted candidate then
+    #: adds large labels instead of data where plans go (BENCHMARKS.md, session 22)
+    fallback: str = "random_actions"
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], method: str = "all",
@@ -105,6 +114,8 @@ class ExperimentConfig:
         if self.plan_spill_limit is not None and not 0 <= self.plan_spill_limit <= 1:
             raise ValueError(f"experiment.plan_spill_limit = {self.plan_spill_limit!r}: allowed null or a fraction "
                              f"in [0, 1] (at most world.problems.max_spill)")
+        if self.fallback not in ALLOWED_FALLBACKS:
+            raise ValueError(f"experiment.fallback = {self.fallback!r}: allowed one of {ALLOWED_FALLBACKS}")
         if not self.planner_time_budget > 0:
             raise ValueError(f"experiment.planner_time_budget = {self.planner_time_budget}: allowed > 0 s")
 

@@ -43,7 +43,7 @@ from task.problems import Problem, sample_problems
 
 from .experiment import ExperimentConfig
 from .io import as_json, load_torch, save_torch, write_csv
-from .methods import RandomPlan, build_method
+from .methods import Choice, RandomPlan, build_method
 from .tracking import Tracker
 
 log = logging.getLogger(__name__)
@@ -126,10 +126,11 @@ def _changed_method_specs(c: Mapping[str, Any]) -> dict:
 
 #: experiment keys added after runs existed, with the value that changes nothing: left out of the digest
 #: so that a directory written before the key existed still resumes
-NEUTRAL_EXPERIMENT_SETTINGS = {"plan_goal_tol": None, "plan_spill_limit": None, "plan_accept_tol": None}
+NEUTRAL_EXPERIMENT_SETTINGS = {"plan_goal_tol": None, "plan_spill_limit": None, "plan_accept_tol": None,
+                               "fallback": "random_actions"}
 #: the same for the MDE's keys
 NEUTRAL_MDE_SETTINGS = {"lengthscale_max": None, "latent_std_min": None, "label_max": None,
-                        "noise_lengthscale_max": None}
+                        "noise_lengthscale_max": None, "hyperparameter_priors": "none"}
 
 
 def config_digest(cfg: Mapping[str, Any]) -> str:
@@ -460,12 +461,13 @@ class MethodRun:
             cand_sets = yield from self._plan_chunk(chunk, plan_mde, it, c0, beta)  # one planning batch per chunk
             choices = [self._choose(prob, cands, it, c0 + j)
                        for j, (prob, cands) in enumerate(zip(chunk, cand_sets))]
+            choices = yield from self._plan_fallbacks(chunk, choices, it, c0)
             t_plan += time.perf_counter() - tp
             ts = time.perf_counter()
             results = yield SimNeed(chunk, [c.actions for c in choices], exp.refit_every)
             t_sim += time.perf_counter() - ts
             for j, (prob, ch, r) in enumerate(zip(chunk, choices, results)):
-                fallbacks += ch.source == "fallback"
+                fallbacks += ch.source.startswith("fallback")  # no admitted candidate (either fallback)
                 reached += bool(r.goal_reached)
                 self.state["categories"].append({
                     "method": self.method, "seed": ctx.seed, "iteration": it + 1, "trajectory": self.state["n_trajectories"],
@@ -509,6 +511,23 @@ class MethodRun:
         sets = yield PlanNeed(reqs, mde)
         self.plan_errors += sum(r.stats.termination == "error" for s in sets for r in s.runs)
         return sets
+
+    def _plan_fallbacks(self, chunk: list[Problem], choices: list[Choice], it: int, c0: int):
+        """``experiment.fallback = model_plan``: each problem whose candidates the MDE all refused gets a plan of
+        the model alone (no MDE), planned in one batch; where that finds nothing too, the random actions stay."""
+        ctx, exp = self.ctx, self.ctx.exp
+        idx = [j for j, c in enumerate(choices) if c.source == "fallback"]
+        if exp.fallback != "model_plan" or not idx:
+            return choices
+        reqs = [PlanRequest("plan", chunk[j].start, chunk[j].goal, d_max=exp.d_max,
+                            seed=derive_seed(ctx.seed, self.method, "fallback-plan", it, c0 + j)) for j in idx]
+        found = yield PlanNeed(reqs, None)
+        self.plan_errors += sum(res.stats.termination == "error" for res in found)
+        choices = list(choices)
+        for j, res in zip(idx, found):
+            if res.found:
+                choices[j] = Choice(np.asarray(res.trajectory.actions), "fallback_plan", 0)
+        return choices
 
     def _choose(self, prob: Problem, cands: Any, it: int, k: int):
         ctx, exp = self.ctx, self.ctx.exp

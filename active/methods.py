@@ -9,7 +9,8 @@ The methods are specs in the ``methods:`` node of the run config (``configs/meth
 name -> ``_target_`` and its arguments), built with ``hydra.utils.instantiate``: a new method is a YAML
 entry or an override (``methods.active_balanced.acquisition.c=0.2``, ``+methods.mine._target_=...``;
 for a new choice rule, a subclass of :class:`Method`). If the planner finds no candidate, a method falls
-back to random actions and the trajectory is marked ``fallback`` (recorded in categories.csv), so every iteration still collects data.
+back to random actions and the trajectory is marked ``fallback`` (recorded in categories.csv), so every iteration still collects data;
+with ``experiment.fallback=model_plan`` the loop replaces those by a plan of the model alone (``fallback_plan``).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ METHODS_FILE = configs.path("methods", "default.yaml")
 @dataclass
 class Choice:
     actions: np.ndarray  # (T, 3)
-    source: str  # "plan", "random_actions" or "fallback"
+    source: str  # "plan", "random_actions", "fallback" (random actions) or "fallback_plan" (experiment.fallback)
     n_candidates: int
     scores: list[float] | None = None
     chosen: int | None = None

@@ -417,3 +417,49 @@ def test_experiment_config_lists_methods():
     assert ExperimentConfig.from_mapping({}, method="active_mean").methods == ("active_mean",)
     assert ExperimentConfig(beta_switch_iteration=10).beta(9) == -2.0
     assert ExperimentConfig(beta_switch_iteration=10).beta(10) == 1.0
+
+
+def test_model_plan_fallback_replaces_refused_rounds_by_plans_of_the_model_alone():
+    """experiment.fallback=model_plan: only the problems whose candidates were all refused get a planner call,
+    in one batch and with no MDE (seeded by (seed, method, iteration, problem)); a found plan replaces the random
+    actions (source "fallback_plan"), a search that finds nothing leaves them; random_actions changes nothing."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from active.loop import MethodRun, PlanNeed, derive_seed
+    from active.methods import Choice
+    from task.problems import Problem
+
+    probs = [Problem(start=np.array([0.3 + 0.01 * k, 0.2, 0.0, 1.0, 0.0]), goal=0.4) for k in range(3)]
+    rand = np.zeros((6, 3))
+    choices = [Choice(rand, "fallback", 0), Choice(np.ones((2, 3)), "plan", 5), Choice(rand, "fallback", 0)]
+
+    def drive(fallback: str, found: list[bool]):
+        run = SimpleNamespace(ctx=SimpleNamespace(exp=ExperimentConfig(fallback=fallback), seed=7),
+                              method="random_plan", plan_errors=0)
+        gen = MethodRun._plan_fallbacks(run, probs, choices, 3, 6)
+        try:
+            need = next(gen)
+        except StopIteration as done:
+            return None, done.value
+        plans = [SimpleNamespace(found=f, stats=SimpleNamespace(termination="found" if f else "budget"),
+                                 trajectory=SimpleNamespace(actions=np.full((3, 3), k)) if f else None)
+                 for k, f in enumerate(found)]
+        try:
+            gen.send(plans)
+        except StopIteration as done:
+            return need, done.value
+
+    need, out = drive("model_plan", [True, False])
+    assert isinstance(need, PlanNeed) and need.mde is None
+    assert [r.kind for r in need.requests] == ["plan", "plan"]
+    np.testing.assert_array_equal(need.requests[1].start, probs[2].start)
+    assert [r.seed for r in need.requests] == [derive_seed(7, "random_plan", "fallback-plan", 3, 6 + j) for j in (0, 2)]
+    assert [c.source for c in out] == ["fallback_plan", "plan", "fallback"]
+    np.testing.assert_array_equal(out[0].actions, np.zeros((3, 3)))
+    assert out[2].actions is rand and [c.source for c in choices] == ["fallback", "plan", "fallback"]  # input untouched
+    need, out = drive("random_actions", [])
+    assert need is None and out is choices
+    with pytest.raises(ValueError, match=r"experiment.fallback = 'plans': allowed one of \('random_actions', 'model_plan'\)"):
+        ExperimentConfig(fallback="plans").validate()

@@ -275,16 +275,20 @@ OLD_TINY_EXPERIMENT = {
 }
 
 
-@pytest.mark.parametrize("key, value", [("lengthscale_max", 2), ("latent_std_min", 0.05), ("label_max", 0.3),
-                                        ("noise_lengthscale_max", 2)])
-def test_an_mde_key_added_later_keeps_the_digest_at_its_off_value(key, value):
-    """mde.lengthscale_max (session 15), mde.latent_std_min (session 17), mde.label_max and mde.noise_lengthscale_max (session 18): null is the behaviour before the
-    key existed, so a run directory written then keeps its digest; any bound is another configuration."""
+@pytest.mark.parametrize("group, key, off, value", [
+    ("mde", "lengthscale_max", None, 2), ("mde", "latent_std_min", None, 0.05), ("mde", "label_max", None, 0.3),
+    ("mde", "noise_lengthscale_max", None, 2), ("mde", "hyperparameter_priors", "none", "gamma"),
+    ("experiment", "fallback", "random_actions", "model_plan")])
+def test_a_key_added_later_keeps_the_digest_at_its_off_value(group, key, off, value):
+    """mde.lengthscale_max (session 15), mde.latent_std_min (session 17), mde.label_max and mde.noise_lengthscale_max
+    (session 18), mde.hyperparameter_priors and experiment.fallback (session 23): the off value is the behaviour
+    before the key existed, so a run directory written then keeps its digest; any other value is another
+    configuration."""
     new = compose_config(["experiment=tiny"])
-    assert new["mde"][key] is None
-    old = {**new, "mde": {k: v for k, v in new["mde"].items() if k != key}}
+    assert new[group][key] == off
+    old = {**new, group: {k: v for k, v in new[group].items() if k != key}}
     assert config_digest(old) == config_digest(new)
-    assert config_digest(compose_config(["experiment=tiny", f"mde.{key}={value}"])) != config_digest(new)
+    assert config_digest(compose_config(["experiment=tiny", f"{group}.{key}={value}"])) != config_digest(new)
 
 
 def test_a_run_directory_recorded_before_the_derived_keys_still_resumes():
