@@ -19,7 +19,7 @@ import math
 import torch
 from torch import Tensor
 
-from .gp import safe_cholesky, train_inputs_transformed
+from .gp import matern_from_dist, safe_cholesky, scaled_dist, train_inputs_transformed
 
 _MATERN_FACTOR = {0.5: 1.0, 1.5: math.sqrt(3.0), 2.5: math.sqrt(5.0)}
 
@@ -44,7 +44,11 @@ class KernelCache:
             outputscale = float(model.covar_module.outputscale.detach())
             const = float(model.mean_module.constant.detach())
             noise = model.likelihood.noise.detach().reshape(-1).to(torch.float64).expand(n)
-            K = model.covar_module(X_t).to_dense().detach() + torch.diag_embed(noise)
+            # the training kernel from explicit differences, as the fit's objective computes it
+            # (mde.gp.scaled_dist): GPyTorch's own distance loses features to cancellation when a
+            # lengthscale is ~1e-10 and then this matrix was not positive definite at the fit's optimum
+            K = matern_from_dist(scaled_dist((X_t - X_t.mean(dim=0)) / ls), float(nu)).mul_(outputscale)
+            K = K + torch.diag_embed(noise)
             L = safe_cholesky(K, jitter, max_tries)
             y = model.train_targets.detach().to(torch.float64)
             alpha = torch.cholesky_solve((y - const).unsqueeze(-1), L).squeeze(-1)
@@ -62,7 +66,6 @@ class KernelCache:
             self.scale = width * ls / c
             Z = (X_t - center) / ls * c
             self.Z = Z.to(dtype)
-            self.Z2 = (Z * Z).sum(dim=1).to(dtype)
             # outputscale s folded in: k = s k0, so K alpha = k0 (s alpha) and
             # ||L^-1 k||^2 = ||(L / s)^-1 k0||^2.
             self.alpha_s = alpha * outputscale  # float64 always: see _mean_from()
@@ -78,9 +81,8 @@ class KernelCache:
     def cross0(self, Xq: Tensor) -> Tensor:
         """Unit-scale correlations ``k0(Xq, X_train)`` for raw query inputs ``Xq`` (``b x d``)."""
         Zq = ((Xq.to(torch.float64) - self.shift) / self.scale).to(self.dtype)
-        D2 = torch.addmm(self.Z2, Zq, self.Z.T, beta=1.0, alpha=-2.0)
-        D2.add_((Zq * Zq).sum(dim=1, keepdim=True)).clamp_min_(0.0)
-        a = D2.sqrt_()  # = sqrt(2 nu) |x - x'| / lengthscale
+        # explicit differences, not |z|^2 + |z'|^2 - 2 z.z': see mde.gp.scaled_dist (as fast here)
+        a = torch.cdist(Zq, self.Z, compute_mode="donot_use_mm_for_euclid_dist")  # = sqrt(2 nu) |x - x'| / lengthscale
         E = a.neg().exp_()
         if self.nu == 0.5:
             return E

@@ -73,3 +73,28 @@ def test_noise_never_exceeds_the_largest_training_noise():
     cap = float(mde._fitted.noise_train[1].max().exp().sqrt())
     assert (mde.noise_std(far) <= cap * (1 + 1e-6)).all()
     assert (mde.model.noise_variance(far.double()) * mde.label_std**2 <= cap**2 * (1 + 1e-6)).all()
+
+
+def test_fit_with_a_vanishing_lengthscale_on_a_barely_varying_feature():
+    """The move GP of a quick run's first round (seed 3): 14 transitions whose volume fractions are 1.000 / 0.000
+    but for two rows (0.974 / 0.026). The fit puts lengthscales of ~1e-10 on those two features, where the
+    matmul form of the distance (|z|^2 + |z'|^2 - 2 z.z') loses the other features to cancellation: rows equal in
+    the fractions got distances of order 1, the kernel matrix was not positive definite at the optimum, the fit
+    failed and the MDE kept its prior (std 1 everywhere). Distances from explicit differences
+    (``mde.gp.scaled_dist``, used by the fit, the prediction cache's training kernel and its ``cross0``) fix it, and
+    the cached prediction equals an explicit-difference reference."""
+    from mde.gp import scaled_dist
+
+    d = torch.load(Path(__file__).parent / "data" / "mde_tiny_lengthscale_fit.pt")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        mde = HeteroscedasticGPMDE(num_threads=1).fit(d["X"], d["y"])
+    assert mde.is_fitted and not [w for w in caught if "keeping the" in str(w.message)]
+    assert mde.model.covar_module.base_kernel.lengthscale.min() < 1e-6  # the regime this test is about
+    mean, std = mde.predict(d["X"])
+    assert (std < 0.1).all()  # not the prior
+    torch.testing.assert_close(mean.double(), _explicit_gp_mean(mde.model, d["X"]), rtol=0, atol=1e-6)
+    big = d["y"] > 0.05  # the two moves that went wrong (a matmul-form cache gave 0.112 where the label is 0.292)
+    torch.testing.assert_close(mean.double()[big], d["y"][big], rtol=0, atol=0.01)
+    Z = torch.tensor([[1e8, 0.3], [1e8, 0.3], [1e8 + 1.0, 0.3]], dtype=torch.float64)
+    assert scaled_dist(Z).tolist() == [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [1.0, 1.0, 0.0]]
