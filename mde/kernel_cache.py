@@ -44,10 +44,12 @@ class KernelCache:
             outputscale = float(model.covar_module.outputscale.detach())
             const = float(model.mean_module.constant.detach())
             noise = model.likelihood.noise.detach().reshape(-1).to(torch.float64).expand(n)
+            center = X_t.mean(dim=0)
+            Zu = (X_t - center) / ls  # kernel space, before the Matern factor
             # the training kernel from explicit differences, as the fit's objective computes it
             # (mde.gp.scaled_dist): GPyTorch's own distance loses features to cancellation when a
             # lengthscale is ~1e-10 and then this matrix was not positive definite at the fit's optimum
-            K = matern_from_dist(scaled_dist((X_t - X_t.mean(dim=0)) / ls), float(nu)).mul_(outputscale)
+            K = matern_from_dist(scaled_dist(Zu), float(nu)).mul_(outputscale)
             K = K + torch.diag_embed(noise)
             L = safe_cholesky(K, jitter, max_tries)
             y = model.train_targets.detach().to(torch.float64)
@@ -55,7 +57,6 @@ class KernelCache:
             # Raw input -> kernel space in one affine map: z = (x - shift) / scale, where the
             # input transform (if any), the centring, the lengthscales and the Matern factor
             # sqrt(2 nu) are folded together, so that the kernel is a function of |z - z'| alone.
-            center = X_t.mean(dim=0)
             if bounds is None:
                 lo, width = torch.zeros(d, dtype=torch.float64), torch.ones(d, dtype=torch.float64)
             else:
@@ -64,8 +65,7 @@ class KernelCache:
             # float64: raw features may carry large offsets that float32 would round away
             self.shift = lo + center * width
             self.scale = width * ls / c
-            Z = (X_t - center) / ls * c
-            self.Z = Z.to(dtype)
+            self.Z = (Zu * c).to(dtype)
             # outputscale s folded in: k = s k0, so K alpha = k0 (s alpha) and
             # ||L^-1 k||^2 = ||(L / s)^-1 k0||^2.
             self.alpha_s = alpha * outputscale  # float64 always: see _mean_from()

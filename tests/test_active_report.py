@@ -124,14 +124,17 @@ def _ladder(path, **entries):
     return path
 
 
-def test_ceiling_line_on_success_and_plan_found_panels(tmp_path):
+def _report_with_ceiling(tmp_path, ceiling: dict) -> tuple[dict, str]:
+    """A one-run report drawn with the given ladder ceiling entry: (what report returns, summary.md)."""
     _write_run(tmp_path / "a", "active_balanced", 0, [0.2, 0.6])
-    ladder = _ladder(tmp_path / "ladder.json", ceiling={"train_trajectories": 128, "n": 30, "found": 0.9,
-                                                        "success": 0.7})
-    made = report([tmp_path / "a"], tmp_path / "rep", ceiling=ladder)
+    made = report([tmp_path / "a"], tmp_path / "rep", ceiling=_ladder(tmp_path / "ladder.json", ceiling=ceiling))
+    return made, (tmp_path / "rep" / "summary.md").read_text()
+
+
+def test_ceiling_line_on_success_and_plan_found_panels(tmp_path):
+    made, md = _report_with_ceiling(tmp_path, {"train_trajectories": 128, "n": 30, "found": 0.9, "success": 0.7})
     label = "ceiling (MDE on 128 trajectories)"
     assert made["ceiling_lines"] == {"test_success": (0.7, label), "test_plan_found": (0.9, label)}
-    md = (tmp_path / "rep" / "summary.md").read_text()
     assert "Ceiling (MDE fitted on 128 target-world trajectories" in md
     assert "test success 0.700, plan found 0.900 on 30 test problems" in md
     assert report([tmp_path / "a"], tmp_path / "rep2")["ceiling_lines"] == {}
@@ -139,14 +142,11 @@ def test_ceiling_line_on_success_and_plan_found_panels(tmp_path):
 
 def test_ceiling_over_several_training_sets_is_labelled_as_their_mean(tmp_path):
     """`--ceiling-seeds 0 1 2`: the line is the mean of three sets, and the summary gives their range."""
-    _write_run(tmp_path / "a", "active_balanced", 0, [0.2, 0.6])
-    ladder = _ladder(tmp_path / "ladder.json", ceiling={"train_trajectories": 128, "n": 30, "found": 0.24,
-                                                        "success": 0.2, "seeds": [0, 1, 2],
-                                                        "found_range": [0.07, 0.37], "success_range": [0.07, 0.3]})
-    made = report([tmp_path / "a"], tmp_path / "rep", ceiling=ladder)
+    made, md = _report_with_ceiling(tmp_path, {"train_trajectories": 128, "n": 30, "found": 0.24, "success": 0.2,
+                                               "seeds": [0, 1, 2], "found_range": [0.07, 0.37],
+                                               "success_range": [0.07, 0.3]})
     label = "ceiling (MDE on 128 trajectories, mean of 3 sets)"
     assert made["ceiling_lines"] == {"test_success": (0.2, label), "test_plan_found": (0.24, label)}
-    md = (tmp_path / "rep" / "summary.md").read_text()
     assert "the mean of 3 training sets, each on 30 test problems, success 0.07-0.30, found 0.07-0.37" in md
     assert "test success 0.200, plan found 0.240." in md
 
