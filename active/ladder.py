@@ -132,7 +132,21 @@ def model_only(world, world_name: str, pool, exp, executor, n: int, seed: int) -
     res = execute_plans(executor, world_name, problems, plans)
     done = [r for r in res if r is not None]
     return {"n": n, "found": len(done) / n, "success": sum(bool(r.goal_reached) for r in done) / n,
-            **outcomes(world, done), "plan_seconds": t_plan}
+            **outcomes(world, done), "plan_seconds": t_plan, "problems": per_problem(problems, res)}
+
+
+def per_problem(problems, res: list) -> list[dict]:
+    """One row per problem: where it started, its goal, and what its plan did (``found`` false: no
+    plan). Why: a rung's rate says how many problems fail, these rows say which (goal, start)."""
+    rows = []
+    for prob, r in zip(problems, res):
+        row = {"start": [round(float(v), 4) for v in prob.start[:3]], "goal": round(float(prob.goal), 4),
+               "found": r is not None}
+        if r is not None:
+            row.update(actions=len(r.steps), category=r.category, goal_reached=bool(r.goal_reached),
+                       final_target=round(float(r.states[-1, 4]), 4), final_spill=round(float(r.final_spill), 4))
+        rows.append(row)
+    return rows
 
 
 def outcomes(world, done: list) -> dict:
@@ -255,7 +269,8 @@ def ceiling(world, dyn, pool, exp, executor, make_mde, n_train: int, n: int, see
             "label_below_d_max": float(np.mean(np.asarray(y) < exp.d_max)) if len(y) else None,
             "precondition_on_train": per_skill,
             "n": n, "found": len(done) / n, "success": sum(bool(r.goal_reached) for r in done) / n,
-            **outcomes(world, done), "fit_seconds": t_fit, "cv_seconds": t_cv, "plan_seconds": t_plan}
+            **outcomes(world, done), "fit_seconds": t_fit, "cv_seconds": t_cv, "plan_seconds": t_plan,
+            "problems": per_problem(test, res)}
 
 
 def _admission(mu: np.ndarray, sd: np.ndarray, y: np.ndarray, exp, prefix: str) -> dict:
@@ -379,7 +394,7 @@ def _mean_over(rows: list[dict], key: str) -> dict:
     record: as it is)."""
     if len(rows) == 1:
         return {k: v for k, v in rows[0].items() if k != key}
-    out = {k: v for k, v in rows[0].items() if k not in (key, "categories")}
+    out = {k: v for k, v in rows[0].items() if k not in (key, "categories", "problems")}
     for k in ("found", "success", "mean_abs_goal_error"):
         if k not in rows[0]:
             continue

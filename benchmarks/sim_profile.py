@@ -20,8 +20,8 @@ import numpy as np
 
 import safeio
 
-#: stages of ``MPMSolver._substep`` in loop order (CPU: bodies move inside the particle-to-grid loop)
-STAGES_SERIAL = ("clear grid", "move bodies + particle to grid", "grid update (gravity, collider BC)",
+#: stages of ``MPMSolver._substep`` in loop order (CPU: one task per environment runs its whole grid phase)
+STAGES_SERIAL = ("per env: clear grid, move bodies, particle to grid, grid update",
                  "grid to particle (+ particle collider projection, J)")
 STAGES_PARALLEL = ("clear grid", "move bodies", "particle to grid", "grid update (gravity, collider BC)",
                    "grid to particle (+ particle collider projection, J)")

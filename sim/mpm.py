@@ -32,11 +32,13 @@ from .backend import init_taichi
 from .config import ConfigError, SimConfig
 from .motion import cos_sin
 from .physics import affine_momentum, box_sdf, bspline_weights, ghost_mass, separate, update_volume_ratio
-from .scene import SHAPE_KINDS, EnvSpec, Shape, sample_water
+from .scene import SHAPE_KINDS, EnvSpec, sample_water
 
 log = logging.getLogger(__name__)
 
 _WALL = -1  # closest-feature index for the tank walls
+#: m added to every collider's culling bounds, so that float32 rounding never culls a point inside a collider
+_CULL_MARGIN = 1e-3
 
 
 @ti.func
@@ -83,12 +85,10 @@ class MPMSolver:
         self.pinned = ti.field(ti.i32)
         self.active = ti.field(ti.i32)  # 0: environment frozen (costs nothing, state kept as it is)
         fb.dense(ti.i, self.B).place(self.n_part, self.nan_flag, self.pinned, self.active)
-        # grid nodes each environment's particles touch: [lo, hi] per axis, this and next substep
+        # grid nodes each environment's last particle-to-grid wrote: [lo, hi] per axis
         self.box_cur = ti.Vector.field(dim, ti.i32)
         self.box_cur_hi = ti.Vector.field(dim, ti.i32)
-        self.box_next = ti.Vector.field(dim, ti.i32)
-        self.box_next_hi = ti.Vector.field(dim, ti.i32)
-        fb.dense(ti.i, self.B).place(self.box_cur, self.box_cur_hi, self.box_next, self.box_next_hi)
+        fb.dense(ti.i, self.B).place(self.box_cur, self.box_cur_hi)
         self.grid_v = ti.Vector.field(dim, ti.f32)
         self.grid_m = ti.field(ti.f32)
         fb.dense(ti.axes(*range(dim + 1)), (self.B,) + self.res).place(self.grid_v, self.grid_m)
@@ -108,9 +108,10 @@ class MPMSolver:
         self.shape_c = ti.Vector.field(2, ti.f32)
         self.shape_cs = ti.Vector.field(2, ti.f32)
         self.shape_size = ti.Vector.field(2, ti.f32)
-        self.shape_radius = ti.field(ti.f32)  # bounding radius about the shape's centre (contact culling)
+        self.shape_lo = ti.Vector.field(2, ti.f32)  # the shape's bounds in its body's frame (contact culling)
+        self.shape_hi = ti.Vector.field(2, ti.f32)
         fb.dense(ti.ij, (self.B, self.NS)).place(self.shape_kind, self.shape_body, self.shape_c,
-                                                   self.shape_cs, self.shape_size, self.shape_radius)
+                                                   self.shape_cs, self.shape_size, self.shape_lo, self.shape_hi)
         self._tree = fb.finalize()
         ti.sync()  # materialise now: Taichi validates pending fields lazily, and a closed solver's would fail
         self._body_state = np.zeros((self.B, self.NB, 6), np.float32)  # x, y, th, vx, vy, w
@@ -142,7 +143,8 @@ class MPMSolver:
         sc = np.zeros((self.B, self.NS, 2), np.float32)
         scs = np.zeros((self.B, self.NS, 2), np.float32)
         ssize = np.ones((self.B, self.NS, 2), np.float32)
-        sradius = np.zeros((self.B, self.NS), np.float32)
+        slo = np.zeros((self.B, self.NS, 2), np.float32)
+        shi = np.zeros((self.B, self.NS, 2), np.float32)
         bstate = np.zeros((self.B, self.NB, 6), np.float32)
         radius = np.zeros((self.B, self.NB), np.float32)
         first = np.zeros((self.B, self.NB), np.int32)
@@ -165,7 +167,8 @@ class MPMSolver:
                 bstate[b, k, :3] = body.pose
                 first[b, k], nshapes[b, k] = s, len(body.shapes)
                 if body.shapes:
-                    radius[b, k] = max(np.linalg.norm(sh.outline(), axis=1).max() for sh in body.shapes) + 1e-3
+                    radius[b, k] = max(np.linalg.norm(sh.center) + sh.bounding_radius() for sh in body.shapes) \
+                        + _CULL_MARGIN
                 for outline in body.world_outlines():
                     if (outline.min(0) < -1e-6).any() or (outline.max(0) > np.asarray(cfg.domain) + 1e-6).any():
                         raise ConfigError(f"env {b}: collider of body {body.name!r} at pose {body.pose} "
@@ -178,7 +181,7 @@ class MPMSolver:
                     sc[b, s] = sh.center
                     scs[b, s] = (math.cos(sh.angle), math.sin(sh.angle))
                     ssize[b, s] = sh.size
-                    sradius[b, s] = _bounding_radius(sh)
+                    slo[b, s], shi[b, s] = sh.body_bounds(_CULL_MARGIN)
                     s += 1
         # --- all checks passed: write fields
         self.specs = list(specs)
@@ -195,7 +198,8 @@ class MPMSolver:
         self.shape_c.from_numpy(sc)
         self.shape_cs.from_numpy(scs)
         self.shape_size.from_numpy(ssize)
-        self.shape_radius.from_numpy(sradius)
+        self.shape_lo.from_numpy(slo)
+        self.shape_hi.from_numpy(shi)
         self.body_radius.from_numpy(radius)
         self.body_first_shape.from_numpy(first)
         self.body_nshapes.from_numpy(nshapes)
@@ -419,8 +423,9 @@ class MPMSolver:
 
         The callers act only on phi < 0 (projection, ghost mass), so only colliders that can contain p
         are evaluated: a body whose bounding circle does not contain p is skipped, and so is a shape
-        whose own circle does not (both circles contain their shapes, and every shape's distance,
-        the ellipse's estimate included, is negative exactly inside it). The minimum over the colliders
+        whose bounds in the body frame do not (circle and bounds contain their shapes with a margin,
+        and every shape's distance, the ellipse's estimate included, is negative exactly inside it;
+        the tests compare squared norms and coordinates: no square root). The minimum over the colliders
         containing p, scanned in the same order with the same strict test, is the minimum over all of
         them: the same (phi, index) to the bit as the full scan whenever p is inside a collider.
         This query is the solver's largest cost (benchmarks.sim_profile).
@@ -439,11 +444,13 @@ class MPMSolver:
         if ti.static(self.dim == 2):
             for k in ti.static(range(self.NB)):  # shapes are stored body by body (reset)
                 ns = self.body_nshapes[b, k]
-                if ns > 0 and (p - self.body_pos[b, k]).norm() < self.body_radius[b, k]:
+                r = self.body_radius[b, k]
+                if ns > 0 and (p - self.body_pos[b, k]).norm_sqr() < r * r:
                     q = self._to_body(b, k, p)
                     s0 = self.body_first_shape[b, k]
                     for s in range(s0, s0 + ns):
-                        if (q - self.shape_c[b, s]).norm() < self.shape_radius[b, s]:
+                        lo, hi = self.shape_lo[b, s], self.shape_hi[b, s]
+                        if lo[0] < q[0] and q[0] < hi[0] and lo[1] < q[1] and q[1] < hi[1]:
                             ps = self._shape_sdf_in_body(b, s, q)
                             if ps < phi:
                                 phi = ps
@@ -483,6 +490,7 @@ class MPMSolver:
 
     @ti.func
     def _p2g(self, b, p):
+        """Scatter particle p's mass and momentum to its 3^dim stencil; returns the stencil's first node."""
         dx = self.cfg.dx
         inv_dx = 1.0 / dx
         dt = self.cfg.dt
@@ -505,15 +513,14 @@ class MPMSolver:
             else:
                 self.grid_v[gi] += weight * (mv + affine @ dpos)
                 self.grid_m[gi] += weight * self.p_mass
+        return base
 
     @ti.kernel
     def _full_boxes(self):
         for b in range(self.B):
             for d in ti.static(range(self.dim)):
                 self.box_cur[b][d] = 0
-                self.box_next[b][d] = 0
                 self.box_cur_hi[b][d] = self.res[d] - 1
-                self.box_next_hi[b][d] = self.res[d] - 1
 
     @ti.func
     def _clear_node(self, I):
@@ -552,11 +559,16 @@ class MPMSolver:
                         fn(ti.Vector([b, i, j, k]))
 
     @ti.func
+    def _for_box_nodes(self, b, fn: ti.template()):
+        """Apply ``fn`` to every node of environment b's active box, serially (inside a per-env task)."""
+        for i in range(self.box_cur[b][0], self.box_cur_hi[b][0] + 1):
+            self._for_active_nodes(b, i, fn)
+
+    @ti.func
     def _begin_env(self, b):
-        self.box_cur[b] = self.box_next[b]
-        self.box_cur_hi[b] = self.box_next_hi[b]
-        self.box_next[b] = ti.Vector([self.res[d] for d in ti.static(range(self.dim))])
-        self.box_next_hi[b] = ti.Vector.zero(ti.i32, self.dim)
+        """Empty the environment's box (its particle-to-grid fills it) and move its bodies."""
+        self.box_cur[b] = ti.Vector([self.res[d] for d in ti.static(range(self.dim))])
+        self.box_cur_hi[b] = ti.Vector.zero(ti.i32, self.dim)
         for k in range(self.NB):
             self.body_pos[b, k] += self.cfg.dt * self.body_vel[b, k]
             self.body_rot[b, k] += self.cfg.dt * self.body_omega[b, k]
@@ -567,32 +579,43 @@ class MPMSolver:
         dim = ti.static(self.dim)
         dx = ti.static(self.cfg.dx)
         dt = ti.static(self.cfg.dt)
-        # 1. clear the nodes the last particle-to-grid wrote (everything else is zero already). Grid
-        #    loops run over rows (b, i) and only the active part of each row: empty tank costs nothing.
-        for b, i in ti.ndrange(self.B, self.res[0]):
-            if self.active[b]:
-                self._for_active_nodes(b, i, self._clear_node)
-        # 2. per environment: make the box of the particles' current stencils the active box, move
-        #    the kinematic bodies by their prescribed velocities (so grid update and G2P see this
-        #    substep's collider poses), then particle to grid. One task per environment on the CPU.
+        # 1. clear the nodes the last particle-to-grid wrote (everything else is zero already);
+        # 2. move the kinematic bodies by their prescribed velocities (so grid update and G2P see this
+        #    substep's collider poses), then particle to grid, which makes the box of the nodes it
+        #    writes the environment's active box;
+        # 3. grid update over that box: momentum to velocity, gravity, colliders.
+        # Grid loops visit only the active box: an empty tank costs nothing.
         if ti.static(self.serial_p2g):
-            ti.loop_config(block_dim=1)  # one environment per task, so environments spread over threads
+            # CPU: one task per environment runs 1-3 (its grid stays in cache; the box is a running
+            # min / max, no atomics); environments spread over the threads
+            ti.loop_config(block_dim=1)
             for b in range(self.B):
                 if self.active[b]:
+                    self._for_box_nodes(b, self._clear_node)
                     self._begin_env(b)
+                    lo, hi = self.box_cur[b], self.box_cur_hi[b]
                     for p in range(self.n_part[b]):
-                        self._p2g(b, p)
+                        base = self._p2g(b, p)
+                        lo = ti.min(lo, base)
+                        hi = ti.max(hi, base + 2)
+                    self.box_cur[b], self.box_cur_hi[b] = lo, hi
+                    self._for_box_nodes(b, self._update_node)
         else:
+            # GPU: each stage in parallel over rows (b, i) or particles; the box by atomics
+            for b, i in ti.ndrange(self.B, self.res[0]):
+                if self.active[b]:
+                    self._for_active_nodes(b, i, self._clear_node)
             for b in range(self.B):
                 if self.active[b]:
                     self._begin_env(b)
             for b, p in ti.ndrange(self.B, self.N):
                 if p < self.n_part[b] and self.active[b]:
-                    self._p2g(b, p)
-        # 3. grid update: momentum to velocity, gravity, colliders
-        for b, i in ti.ndrange(self.B, self.res[0]):
-            if self.active[b]:
-                self._for_active_nodes(b, i, self._update_node)
+                    base = self._p2g(b, p)
+                    ti.atomic_min(self.box_cur[b], base)
+                    ti.atomic_max(self.box_cur_hi[b], base + 2)
+            for b, i in ti.ndrange(self.B, self.res[0]):
+                if self.active[b]:
+                    self._for_active_nodes(b, i, self._update_node)
         # 4. grid to particle, advection, collider projection, safety clamp
         for b, p in ti.ndrange(self.B, self.N):
             if p < self.n_part[b] and self.active[b]:
@@ -644,9 +667,6 @@ class MPMSolver:
                 if clamped:
                     self.pinned[b] += 1
                 self.x[b, p] = xn
-                nb = ti.cast(xn / dx - 0.5, ti.i32)
-                ti.atomic_min(self.box_next[b], nb)
-                ti.atomic_max(self.box_next_hi[b], nb + 2)
                 self.v[b, p] = new_v
                 self.C[b, p] = new_C
                 self.J[b, p] = J
@@ -666,13 +686,6 @@ class MPMSolver:
                         if lo[r, 0] <= q[0] and q[0] <= hi[r, 0] and lo[r, 1] <= q[1] and q[1] <= hi[r, 1]:
                             out[b, r] += 1
                             counted = 1
-
-
-def _bounding_radius(shape: Shape) -> float:
-    """Radius about the shape's centre of a circle that contains it (1 mm margin for f32 rounding)."""
-    a, b = shape.size
-    r = {"box": math.hypot(a, b), "capsule": a + b, "ellipse": max(a, b)}[shape.kind]
-    return r + 1e-3
 
 
 def _sample_nd(spec: EnvSpec, cfg: SimConfig, rng: np.random.Generator) -> np.ndarray:

@@ -36,6 +36,29 @@ class Shape:
         if not all(s > 0 for s in self.size):
             raise ValueError(f"Shape.size = {self.size}: all entries must be > 0 m")
 
+    def bounding_radius(self) -> float:
+        """Radius of a circle about the shape's centre that contains the shape (exact, no margin)."""
+        a, b = self.size
+        return float(math.hypot(a, b) if self.kind == "box" else (a + b if self.kind == "capsule" else max(a, b)))
+
+    def body_bounds(self, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Axis-aligned bounds (lo, hi) of the shape in its body's frame, widened by ``margin`` (m).
+
+        Why: a collider query can skip every shape whose bounds do not hold the point, with four
+        comparisons instead of a square root; exact for each kind (no polygon approximation), so no
+        point of the shape is ever outside them."""
+        a, b = self.size
+        c, s = abs(math.cos(self.angle)), abs(math.sin(self.angle))
+        if self.kind == "box":
+            half = (c * a + s * b, s * a + c * b)
+        elif self.kind == "capsule":  # a segment of half length a along local x, swept by radius b
+            half = (c * a + b, s * a + b)
+        else:  # ellipse with radii (a, b): the support function along the body axes
+            half = (math.hypot(a * c, b * s), math.hypot(a * s, b * c))
+        centre = np.asarray(self.center, float)
+        half = np.asarray(half) + margin
+        return centre - half, centre + half
+
     def outline(self, n: int = 24) -> np.ndarray:
         """Closed polygon of the shape boundary in the body frame (for drawing and bounds)."""
         if self.kind == "box":

@@ -115,7 +115,7 @@ class Obstacles:
             if cutoff is None:
                 sel = slice(None)
             else:
-                sel = np.flatnonzero(np.hypot(*(p - centre).T) - _bounding_radius(sh) < cutoff)
+                sel = np.flatnonzero(np.hypot(*(p - centre).T) - sh.bounding_radius() < cutoff)
                 if not len(sel):
                     continue
             d = _sdf_shape(sh, pose, p[sel])
@@ -153,7 +153,7 @@ class Obstacles:
             p = pts[rows]
             best[rows] = np.minimum((p - self.interior_lo).min(2), (self.interior_hi - p).min(2))
         for k, pose, sh, sc in self._shapes():
-            rows = np.flatnonzero(np.hypot(*(centre - sc).T) < r + _bounding_radius(sh) + cutoff)
+            rows = np.flatnonzero(np.hypot(*(centre - sc).T) < r + sh.bounding_radius() + cutoff)
             if not rows.size:
                 continue
             d = _sdf_shape(sh, pose, pts[rows].reshape(-1, 2)).reshape(rows.size, m)
@@ -161,12 +161,6 @@ class Obstacles:
             best[rows] = np.where(closer, d, best[rows])
             idx[rows] = np.where(closer, k, idx[rows])
         return best, idx
-
-
-def _bounding_radius(shape: Shape) -> float:
-    """Radius of a circle about the shape's centre that contains it."""
-    a, b = shape.size
-    return float(math.hypot(a, b) if shape.kind == "box" else (a + b if shape.kind == "capsule" else max(a, b)))
 
 
 def cup_boundary(cfg: WorldConfig, spacing: float = 0.003) -> np.ndarray:

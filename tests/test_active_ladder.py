@@ -27,6 +27,12 @@ def test_tiny_ladder_writes_every_rung(tmp_path, capsys):
     assert ceil["train_trajectories"] == 5 and ceil["train_transitions"] >= 5 and ceil["n"] == 2
     assert 0.0 <= ceil["success"] <= ceil["found"] <= 1.0
     assert sum(ceil["categories"].values()) == round(2 * ceil["found"])  # how the found plans ended
+    for rung in (res["source_model_only"], res["target_model_only"], ceil):  # which problems failed, and how
+        rows = rung["problems"]
+        assert len(rows) == 2 and sum(r["found"] for r in rows) == round(2 * rung["found"])
+        assert sum(r.get("goal_reached", False) for r in rows) == round(2 * rung["success"])
+        assert all(0.3 <= r["goal"] <= 0.8 and len(r["start"]) == 3 for r in rows)
+        assert all(r["category"] in ceil["categories"] for r in rows if r["found"])
     for skill in ceil["precondition_on_train"].values():  # in sample and held out by trajectory
         assert 0.0 <= skill["in_sample_admitted"] <= 1.0 and 0.0 <= skill["heldout_admitted"] <= 1.0
     assert res["seconds"] > 0
@@ -44,6 +50,7 @@ def test_tiny_ladder_writes_every_rung(tmp_path, capsys):
           "--ceiling-seeds", "0", "1", "--", *overrides])
     many = json.loads((tmp_path / "seeds" / "ladder.json").read_text())["ceiling"]
     assert many["seeds"] == [0, 1] and [r["seed"] for r in many["per_seed"]] == [0, 1]
+    assert "problems" not in many and all(len(r["problems"]) == 2 for r in many["per_seed"])
     assert many["success"] == pytest.approx((many["per_seed"][0]["success"] + many["per_seed"][1]["success"]) / 2)
     assert all((tmp_path / "seeds" / f"ceiling_train_seed{s}.npz").is_file() for s in (0, 1))
 

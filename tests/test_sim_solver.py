@@ -343,3 +343,21 @@ def test_three_dimensional_tank_runs():
     assert len(x) == solver.particle_counts()[0] and np.isfinite(x).all()
     assert x[:, 1].mean() < z0  # it falls
     solver.close()
+
+
+@pytest.mark.parametrize("kind,size", [("box", (0.03, 0.004)), ("capsule", (0.02, 0.005)), ("ellipse", (0.065, 0.007))])
+def test_shape_bounds_hold_the_shape_tightly(kind, size):
+    """The solver skips a shape when a point lies outside its body-frame bounds (MPMSolver._contact), so
+    every point of the shape must lie inside them; and they should be tight (exact for each kind)."""
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        sh = Shape(kind, center=tuple(rng.uniform(-0.05, 0.05, 2)), angle=float(rng.uniform(-3.2, 3.2)), size=size)
+        lo, hi = sh.body_bounds()
+        pts = sh.outline(4000)  # vertices lie on the exact boundary
+        assert (pts >= lo - 1e-12).all() and (pts <= hi + 1e-12).all()
+        np.testing.assert_allclose(pts.min(0), lo, atol=2e-5)
+        np.testing.assert_allclose(pts.max(0), hi, atol=2e-5)
+        assert np.linalg.norm(pts - np.asarray(sh.center), axis=1).max() <= sh.bounding_radius() + 1e-12
+        lo2, hi2 = sh.body_bounds(margin=0.001)
+        np.testing.assert_allclose(hi2 - hi, 0.001)
+        np.testing.assert_allclose(lo - lo2, 0.001)
