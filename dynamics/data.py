@@ -341,12 +341,12 @@ def generate_transitions(data: DataConfig, world: str = "source", n_batches: int
 def shard_identity(data: DataConfig, wcfg: Any) -> str:
     """Digest of what a batch's content depends on besides its key: the generator fields (not the
     batch count) and the world, so a shard left by another configuration is never reused."""
-    from .config import _digest, data_format, solver_dict, world_dict
+    from .config import _digest, data_format, solver_dict, without_goal_range, world_dict
 
     d = _plain_data(data)
     for k in ("world", "n_batches"):
         d.pop(k, None)
-    world = world_dict(data, wcfg)
+    world = without_goal_range(world_dict(data, wcfg))
     return _digest({"format": data_format(world), "data": d, "world": world,
                     "solver": solver_dict(data, wcfg)})
 

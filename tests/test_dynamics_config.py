@@ -99,6 +99,21 @@ def test_the_plant_is_not_part_of_the_source_data_hash():
     assert data_hash(c, w) != data_hash(c)
 
 
+def test_the_goal_range_is_not_part_of_the_source_data_identity():
+    """No goal enters the source data (goals only pose planning problems): another goal range keeps the
+    dataset, its shards and the shipped file; the start region, which the generator draws from, counts."""
+    from sim.world import DEFAULT_CONFIG
+
+    from dynamics.data import shard_identity
+
+    c = DynamicsConfig()
+    w = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    w["problems"]["goal"] = [0.3, 0.5]
+    assert data_hash(c, w) == data_hash(c) and shard_identity(c.data, w) == shard_identity(c.data, None)
+    w["problems"]["start_x"] = [0.38, 0.50]
+    assert data_hash(c, w) != data_hash(c)
+
+
 def test_the_solver_arch_is_not_part_of_the_data_hash():
     """A GPU run (world.sim.arch=gpu) uses the shipped, CPU-made data instead of regenerating them
     (session 20's device run did, for 3 min 18 s, before this); the hash of the CPU world is unchanged."""
