@@ -11,18 +11,25 @@ entry or an override (``methods.active_balanced.acquisition.c=0.2``, ``+methods.
 for a new choice rule, a subclass of :class:`Method`). If the planner finds no candidate, a method falls
 back to random actions and the trajectory is marked ``fallback`` (recorded in categories.csv), so every iteration still collects data;
 with ``experiment.fallback=model_plan`` the loop replaces those by a plan of the model alone (``fallback_plan``).
+If an active method's acquisition fails numerically (a singular MDE posterior), it executes a random
+candidate instead, warns, and marks it ``plan_unscored``.
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any, Callable, Mapping
 
 import numpy as np
 import torch
+from linear_operator.utils.errors import NanError, NotPSDError
 
 import configs
+
+#: numerical failures of an MDE posterior that an active method survives (a random candidate instead)
+SCORING_ERRORS = (NotPSDError, NanError, torch.linalg.LinAlgError)
 
 #: the shipped registry of methods (name -> instantiable spec), the ``methods:`` node a run gets by default
 METHODS_FILE = configs.path("methods", "default.yaml")
@@ -31,7 +38,9 @@ METHODS_FILE = configs.path("methods", "default.yaml")
 @dataclass
 class Choice:
     actions: np.ndarray  # (T, 3)
-    source: str  # "plan", "random_actions", "fallback" (random actions) or "fallback_plan" (experiment.fallback)
+    #: "plan", "random_actions", "fallback" (random actions), "fallback_plan" (experiment.fallback) or
+    #: "plan_unscored" (the acquisition failed numerically; a random candidate was executed)
+    source: str
     n_candidates: int
     scores: list[float] | None = None
     chosen: int | None = None
@@ -75,10 +84,17 @@ class ActiveChoice(Method):
             return Choice(random_actions(), "fallback", 0)
         acq = make_acquisition(self.acquisition)
         scores = []
-        with torch.no_grad():
-            for cand in candidates:  # candidates differ in length: one q-batch each
-                X = torch.as_tensor(np.asarray(cand.features), dtype=torch.float64).unsqueeze(0)
-                scores.append(float(acq(X).item()))
+        try:
+            with torch.no_grad():
+                for cand in candidates:  # candidates differ in length: one q-batch each
+                    X = torch.as_tensor(np.asarray(cand.features), dtype=torch.float64).unsqueeze(0)
+                    scores.append(float(acq(X).item()))
+        except SCORING_ERRORS as err:  # one bad MDE state must not end a long run: recorded, run goes on
+            warnings.warn(f"acquisition failed on {len(candidates)} candidates ({type(err).__name__}: {err}); "
+                          "executing a random candidate, recorded as source 'plan_unscored'", RuntimeWarning,
+                          stacklevel=2)
+            k = int(rng.integers(len(candidates)))
+            return Choice(np.asarray(candidates[k].actions), "plan_unscored", len(candidates), chosen=k)
         k = int(np.argmax(scores))  # BoTorch convention: acquisitions are maximised
         return Choice(np.asarray(candidates[k].actions), "plan", len(candidates), scores=scores, chosen=k)
 

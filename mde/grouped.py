@@ -172,7 +172,8 @@ class GroupedModel(DiagonalModel):
 
     Rows of different groups are independent by construction; rows of one group are returned
     with their marginal variances only (a diagonal covariance), which is what the trajectory
-    acquisitions of this project read (per-step mean and std).
+    acquisitions of this project read (per-step mean and std). The numbers are the group MDE's
+    :meth:`HeteroscedasticGPMDE.mean_var` (its cached factorisation, no autograd).
     """
 
     def __init__(self, mde: GroupedMDE) -> None:
@@ -187,8 +188,12 @@ class GroupedModel(DiagonalModel):
         var = torch.empty_like(mean)
         for value in torch.unique(g).tolist():
             rows = g == value
-            model = self._mde._children.get(value, self._mde._prior).model
-            post = model.posterior(flat[rows], observation_noise=observation_noise)
-            mean[rows] = post.mean.reshape(-1).to(X.dtype)
-            var[rows] = post.variance.reshape(-1).to(X.dtype)
+            child = self._mde._children.get(value, self._mde._prior)
+            if isinstance(observation_noise, Tensor):  # a caller's own noise: GPyTorch's posterior adds it
+                post = child.model.posterior(flat[rows], observation_noise=observation_noise)
+                m, v = post.mean.reshape(-1), post.variance.reshape(-1)
+            else:  # the fit's cached factorisation, the numbers the planner's precondition reads
+                m, v = child.mean_var(flat[rows].detach(), observation_noise=bool(observation_noise))
+            mean[rows] = m.to(X.dtype)
+            var[rows] = v.to(X.dtype)
         return mean.reshape(X.shape[:-1]), var.reshape(X.shape[:-1])

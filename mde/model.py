@@ -326,25 +326,42 @@ class HeteroscedasticGPMDE:
         The std is that of the predictive distribution (latent variance + noise at X). Output
         dtype follows ``X`` (float64 for non-float input).
         """
+        mean, var_z, dtype = self._predict_z(X, observation_noise=True)
+        if var_z is None:
+            return mean, torch.full_like(mean, self._config.prior_std)
+        return mean, var_z.sqrt_().mul_(self._fitted.sigma_z).to(dtype)
+
+    def mean_var(self, X: Any, observation_noise: bool = True) -> tuple[Tensor, Tensor]:
+        """Mean and variance (latent, plus the noise at ``X`` if ``observation_noise``), label units.
+
+        The cached factorisation of the fit (with the jitter the fit accepted), so that planner and
+        acquisition read one set of numbers: GPyTorch's own posterior refactorises the kernel with a
+        smaller jitter cap and can fail on a fit this model accepted.
+        """
+        mean, var_z, dtype = self._predict_z(X, observation_noise)
+        if var_z is None:
+            return mean, torch.full_like(mean, self._config.prior_std**2)
+        return mean, var_z.mul_(self._fitted.sigma_z**2).to(dtype)
+
+    def _predict_z(self, X: Any, observation_noise: bool) -> tuple[Tensor, Tensor | None, torch.dtype]:
+        """Mean (label units, output dtype) and float64 variance in z-scored units (None before a fit)."""
         X = self._check_query(X)
         out_dtype = X.dtype
         f = self._fitted
         if f is None:
-            n = X.shape[0]
-            return (
-                torch.zeros(n, dtype=out_dtype),
-                torch.full((n,), self._config.prior_std, dtype=out_dtype),
-            )
-        means, stds = [], []
+            return torch.zeros(X.shape[0], dtype=out_dtype), None, out_dtype
+        means, variances = [], []
         with torch.no_grad(), torch_threads(self._config.num_threads):
             for chunk in X.split(self._config.predict_chunk):
                 m_z, v_z = f.mean_cache.mean_var(chunk)
-                v_z = v_z.to(torch.float64).add_(self._noise_z(chunk))
-                means.append(m_z.mul_(f.sigma_z).add_(f.mu_z))
-                stds.append(v_z.sqrt_().mul_(f.sigma_z))
+                v_z = v_z.to(torch.float64)
+                if observation_noise:
+                    v_z = v_z.add_(self._noise_z(chunk))
+                means.append(m_z.mul_(f.sigma_z).add_(f.mu_z).to(out_dtype))
+                variances.append(v_z)
         if len(means) == 1:
-            return means[0].to(out_dtype), stds[0].to(out_dtype)
-        return torch.cat(means).to(out_dtype), torch.cat(stds).to(out_dtype)
+            return means[0], variances[0], out_dtype
+        return torch.cat(means), torch.cat(variances), out_dtype
 
     def noise_std(self, X: Any) -> Tensor:
         """Std of the observation noise alone at ``X`` (label units), for diagnostics and plots."""

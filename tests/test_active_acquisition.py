@@ -155,3 +155,23 @@ def test_old_form_key_is_refused_naming_the_replacement():
     with pytest.raises(ValueError, match=r"acquisition.form = 'lcb' was removed.*acquisition=lcb"):
         acquisition_factory({"_target_": "active.acquisition.DiscountedMaxUCB", "gamma": 1.0, "form": "lcb"},
                             ExperimentConfig())
+
+
+def test_an_acquisition_that_fails_numerically_executes_a_random_candidate_recorded():
+    """A singular MDE posterior while scoring must not end a long run: the method warns, executes a random
+    candidate (as random_plan would) and marks it ``plan_unscored`` for categories.csv."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    from linear_operator.utils.errors import NotPSDError
+
+    from active.methods import ActiveChoice
+
+    def failing(X):
+        raise NotPSDError("not positive definite")
+
+    cands = [SimpleNamespace(features=np.zeros((2, 3)), actions=np.full((2, 3), k)) for k in range(3)]
+    with pytest.warns(RuntimeWarning, match="acquisition failed on 3 candidates.*plan_unscored"):
+        ch = ActiveChoice({"c": 0.1}).choose(cands, np.random.default_rng(0), lambda: None, lambda kw: failing)
+    assert ch.source == "plan_unscored" and ch.n_candidates == 3 and ch.scores is None
+    assert (ch.actions == ch.chosen).all() and ch.chosen == int(np.random.default_rng(0).integers(3))

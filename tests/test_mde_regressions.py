@@ -98,3 +98,28 @@ def test_fit_with_a_vanishing_lengthscale_on_a_barely_varying_feature():
     torch.testing.assert_close(mean.double()[big], d["y"][big], rtol=0, atol=0.01)
     Z = torch.tensor([[1e8, 0.3], [1e8, 0.3], [1e8 + 1.0, 0.3]], dtype=torch.float64)
     assert scaled_dist(Z).tolist() == [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [1.0, 1.0, 0.0]]
+
+
+def test_grouped_acquisition_reads_the_fits_own_factorisation():
+    """40 pours of a quick run (goals 0.3-0.6, active_balanced seed 1, iteration 3): the fit needs a Cholesky
+    jitter of 4.5e-3 (accepted by the MDE's own cap), while GPyTorch's posterior refactorises the kernel with
+    a cap of 1e-3 and raised NotPSDError while the acquisition scored candidates; the whole run died. The
+    acquisition's BoTorch view now reads the fit's cached factorisation (the planner's numbers)."""
+    from active.acquisition import DiscountedMaxUCB
+    from mde import GroupedMDE
+
+    d = torch.load(Path(__file__).parent / "data" / "mde_gpytorch_cholesky_cap.pt")
+    X = d["X"]  # column 5 is the skill: every row a move (group 0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mde = GroupedMDE(group_column=5, num_threads=1).fit(X, d["y"])
+    assert mde.groups[0.0].is_fitted
+    trajectories = X[:36].reshape(4, 9, X.shape[1])
+    post = mde.model.posterior(trajectories, observation_noise=True)
+    mean, std = mde.predict(X[:36])
+    torch.testing.assert_close(post.mean.reshape(-1), mean, rtol=0, atol=1e-12)
+    torch.testing.assert_close(post.variance.reshape(-1).sqrt(), std, rtol=1e-12, atol=1e-12)
+    latent = mde.model.posterior(trajectories).variance.reshape(-1)
+    assert (latent < std**2).all()  # without observation noise: the latent variance alone
+    scores = DiscountedMaxUCB(mde.model, c=0.1)(trajectories)
+    assert scores.shape == (4,) and torch.isfinite(scores).all()
