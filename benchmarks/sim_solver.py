@@ -1,9 +1,11 @@
 """Solver throughput against a bare reference MLS-MPM kernel, in the same process.
 
-    python -m benchmarks.sim_solver [--out bench_sim.json] [--envs 1 8 32] [--seconds 0.3]
+    python -m benchmarks.sim_solver [--out bench_sim.json] [--envs 1 8 32] [--seconds 0.3] [--scene pouring|world]
 
-Scene: a pouring-like world (a cup of water carried over a target cup on the floor, i.e. moving
-colliders, SDF queries and projection all active). Reference: Taichi's mpm88 water written out here
+Scene ``pouring`` (the first one, kept for comparison): a pouring-like world (a cup of water carried over
+a target cup on the floor, i.e. moving colliders, SDF queries and projection all active; ppc 4, the
+solver's plain defaults). Scene ``world``: the default world's target-world scene (its water model, full
+cup, target cup and plant), the cup moving and tilting. Reference: Taichi's mpm88 water written out here
 (APIC, J-based pressure, domain walls only, particle-parallel atomics) with the same particle count,
 grid and number of environments B. Figure: particle-substeps per second = B * particles * substeps / s.
 """
@@ -108,6 +110,9 @@ def pouring_scene(cfg: SimConfig, env: int) -> EnvSpec:
     return EnvSpec(bodies=[cup, target], water=[WaterBlock((-0.035, 0.0), (0.035, 0.05), body="cup")])
 
 
+SCENES = ("pouring", "world")
+
+
 def _time_loop(fn, min_seconds: float) -> tuple[int, float]:
     fn(5)  # warm up / compile
     n, t0 = 0, time.perf_counter()
@@ -117,13 +122,28 @@ def _time_loop(fn, min_seconds: float) -> tuple[int, float]:
     return n, time.perf_counter() - t0
 
 
-def bench(envs=(1, 8, 32), seconds: float = 0.5, dx: float = 0.01, arch: str = "cpu", rounds: int = 3) -> list[dict]:
+def _setup(scene: str, B: int, dx: float, arch: str) -> tuple[SimConfig, list[EnvSpec]]:
+    """The solver config and the B environments of a benchmark scene."""
+    if scene == "pouring":
+        cfg = SimConfig(n_envs=B, dx=dx, dt=0.4 * dx / 12.0, max_particles=int(0.0035 * 4 / dx**2) + 64, arch=arch)
+        return cfg, [pouring_scene(cfg, b) for b in range(B)]
+    from active.run import compose_config
+    from sim.world import WorldConfig
+
+    world = WorldConfig.from_mapping(compose_config([])["world"])
+    return world.sim_config(B, arch=arch), [world.scene("target", (0.40 + 0.002 * (b % 5), 0.20, 0.0)) for b in range(B)]
+
+
+def bench(envs=(1, 8, 32), seconds: float = 0.5, dx: float = 0.01, arch: str = "cpu", rounds: int = 3,
+          scene: str = "pouring") -> list[dict]:
+    if scene not in SCENES:
+        raise ValueError(f"scene = {scene!r}: allowed one of {SCENES}")
     init_taichi(arch)
     rows = []
     for B in envs:
-        cfg = SimConfig(n_envs=B, dx=dx, dt=0.4 * dx / 12.0, max_particles=int(0.0035 * 4 / dx**2) + 64, arch=arch)
+        cfg, specs = _setup(scene, B, dx, arch)
         solver = MPMSolver(cfg)
-        solver.reset([pouring_scene(cfg, b) for b in range(B)])
+        solver.reset(specs)
         n_p = int(solver.particle_counts()[0])
         # the cup moves during the measurement: colliders with velocity, as in a pour
         solver.set_body_velocity(0, np.tile([[-0.1, 0.0]], (B, 1)), np.full(B, 0.3))
@@ -146,7 +166,7 @@ def bench(envs=(1, 8, 32), seconds: float = 0.5, dx: float = 0.01, arch: str = "
             reference = max(reference, B * n_p * r_steps / r_secs)
         solver.close()
         ref.close()
-        rows.append({"B": B, "particles_per_env": n_p, "grid": list(cfg.res), "solver_pss": ours,
+        rows.append({"scene": scene, "B": B, "particles_per_env": n_p, "grid": list(cfg.res), "solver_pss": ours,
                      "reference_pss": reference, "ratio": ours / reference,
                      "solver_substeps_per_s": ours / (B * n_p), "reference_substeps_per_s": reference / (B * n_p)})
     base = rows[0]["solver_pss"] if rows and rows[0]["B"] == 1 else None
@@ -163,15 +183,17 @@ def main(argv=None) -> None:
     ap.add_argument("--seconds", type=float, default=3.0, help="measuring time per case and side")
     ap.add_argument("--dx", type=float, default=0.01)
     ap.add_argument("--arch", default="cpu")
+    ap.add_argument("--scene", default="pouring", choices=SCENES,
+                    help="pouring: the first benchmark scene (ppc 4); world: the default world's target-world scene")
     args = ap.parse_args(argv)
-    rows = bench(args.envs, args.seconds, args.dx, args.arch)
+    rows = bench(args.envs, args.seconds, args.dx, args.arch, scene=args.scene)
     print(f"{'B':>4} {'particles':>9} {'grid':>9} {'solver p-sub/s':>15} {'reference p-sub/s':>18} "
           f"{'ratio':>6} {'vs B=1':>7}")
     for r in rows:
         sp = f"{r['speedup_vs_B1']:.2f}x" if r["speedup_vs_B1"] else "-"
         print(f"{r['B']:>4} {r['particles_per_env']:>9} {'x'.join(map(str, r['grid'])):>9} {r['solver_pss']:>15.3g} "
               f"{r['reference_pss']:>18.3g} {r['ratio']:>6.2f} {sp:>7}")
-    meta = {"arch": args.arch, "dx": args.dx, "cpu_count": os.cpu_count(), "machine": platform.machine(),
+    meta = {"scene": args.scene, "arch": args.arch, "dx": args.dx if args.scene == "pouring" else None, "cpu_count": os.cpu_count(), "machine": platform.machine(),
             "targets": {"ratio_min": 0.7, "B32_over_B1_min": 2.0}}
     safeio.write_json(args.out, {"meta": meta, "rows": rows})
     print(f"wrote {args.out}")
