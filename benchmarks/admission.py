@@ -1,0 +1,125 @@
+"""How much of a fixed, labelled target-world set each saved MDE of a run admits, iteration by iteration:
+``python -m benchmarks.admission RUN_DIR ... --sets A.npz B.npz [--out FILE] [overrides]``.
+
+Why: in the quick experiment the test planner finds fewer plans as the MDEs see more data (active_balanced
+0.57 of the test problems after one round, 0.03-0.20 after five). This scores every ``mde_iterNNN.pt`` of the
+runs with the test precondition (mu + beta_test sigma < d_max) on transitions whose true deviation is known
+(saved ceiling sets, ``active.ladder --ceiling-data``; labelled with the run config's cached dynamics model):
+the share of good transitions (deviation < d_max) admitted, of bad ones admitted, per skill, and for the
+partial first pours (a full cup that pours part of its water into the target cup and keeps some), the pours
+that goals inside the range need. Prints one row per (method, iteration), the mean over the runs' seeds;
+writes JSON with every run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from benchmarks._cli import report
+
+_MDE_FILE = re.compile(r"mde_iter(\d{3})\.pt$")
+
+
+def labelled_set(paths: Sequence[Path], overrides: Sequence[str]) -> dict[str, Any]:
+    """Features, labels and masks of the transitions of saved ceiling sets (labels from the config's model)."""
+    import torch
+
+    from active.experiment import ExperimentConfig
+    from active.loop import label_transitions, planning_dynamics
+    from active.run import compose_config
+    from planner import features
+    from sim.skills import POUR
+    from sim.world import WorldConfig
+
+    cfg = compose_config(list(overrides))
+    exp = ExperimentConfig.from_mapping(cfg["experiment"])
+    world = WorldConfig.from_mapping(cfg["world"])
+    dyn = planning_dynamics(cfg["dynamics"], cfg["world"], world, exp)
+    parts = []
+    for p in paths:
+        if not Path(p).exists():
+            raise FileNotFoundError(f"--sets {p}: no such file")
+        with np.load(p) as f:
+            parts.append({k: f[k] for k in ("s", "a", "s_next")})
+    s, a, s2 = (np.concatenate([d[k] for d in parts]) for k in ("s", "a", "s_next"))
+    y = label_transitions(dyn, s, a, s2, world.distance_weights)
+    pour = a[:, 0] == POUR
+    # state = (x, y, theta, fraction in the poured cup, fraction in the target cup)
+    partial = pour & (s[:, 3] > 0.5) & (s2[:, 4] - s[:, 4] > 0.15) & (s2[:, 3] > 0.2)
+    return {"X": torch.as_tensor(features(s, a)), "good": y < exp.d_max, "pour": pour, "partial": partial,
+            "exp": exp, "n": len(y), "label_mean_partial": float(np.mean(y[partial])) if partial.any() else None}
+
+
+def score(mde: Any, data: dict[str, Any]) -> dict[str, float | None]:
+    """Admitted shares of one MDE on the labelled set (None where a group is empty)."""
+    exp, good, pour, partial = data["exp"], data["good"], data["pour"], data["partial"]
+    mu, sd = (v.double().numpy() for v in mde.predict(data["X"]))
+    ok = mu + exp.beta_test * sd < exp.d_max
+
+    def share(m: np.ndarray) -> float | None:
+        return float(np.mean(ok[m])) if m.any() else None
+
+    return {"pour_good": share(pour & good), "pour_bad": share(pour & ~good), "move_good": share(~pour & good),
+            "move_bad": share(~pour & ~good), "partial_good": share(partial & good),
+            "partial_good_std_median": float(np.median(sd[partial & good])) if (partial & good).any() else None}
+
+
+def run(run_dirs: Sequence[Path], sets: Sequence[Path], overrides: Sequence[str]) -> dict[str, Any]:
+    import mde as mde_pkg
+
+    files = sorted(f for d in run_dirs for f in Path(d).glob("seed*/*/mde_iter*.pt") if _MDE_FILE.search(f.name))
+    if not files:
+        raise FileNotFoundError(f"no seed*/METHOD/mde_iterNNN.pt under {[str(d) for d in run_dirs]}")
+    data = labelled_set(sets, overrides)
+    rows = []
+    for f in files:
+        row = {"run": str(f.parents[2]), "seed": f.parents[1].name, "method": f.parent.name,
+               "iteration": int(_MDE_FILE.search(f.name).group(1))}
+        rows.append({**row, **score(mde_pkg.load(f), data)})
+    counts = {k: int(np.sum(data[m])) for k, m in (("pours", "pour"), ("partial_first_pours", "partial"))}
+    counts.update(transitions=data["n"], pours_good=int(np.sum(data["pour"] & data["good"])),
+                  partial_good=int(np.sum(data["partial"] & data["good"])))
+    return {"sets": [str(p) for p in sets], "overrides": list(overrides), "counts": counts,
+            "label_mean_partial": data["label_mean_partial"], "rows": rows}
+
+
+KEYS = ("pour_good", "pour_bad", "move_good", "partial_good", "partial_good_std_median")
+
+
+def format_table(r: dict[str, Any]) -> str:
+    c = r["counts"]
+    lines = [f"labelled set: {c['transitions']} transitions, {c['pours']} pours ({c['pours_good']} good), "
+             f"{c['partial_first_pours']} partial first pours ({c['partial_good']} good)",
+             f"{'method':<16} {'it':>3} {'runs':>4} " + " ".join(f"{k:>23}" for k in KEYS)]
+    groups: dict[tuple[str, int], list[dict]] = {}
+    for row in r["rows"]:
+        groups.setdefault((row["method"], row["iteration"]), []).append(row)
+    for (method, it), rows in sorted(groups.items()):
+        cells = []
+        for k in KEYS:
+            v = [x[k] for x in rows if x[k] is not None]
+            cells.append(f"{np.mean(v):>23.3f}" if v else f"{'-':>23}")
+        lines.append(f"{method:<16} {it:>3} {len(rows):>4} " + " ".join(cells))
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.admission", description=__doc__.split("\n\n")[0])
+    ap.add_argument("runs", type=Path, nargs="+", help="run directories (seed*/METHOD/mde_iterNNN.pt below)")
+    ap.add_argument("--sets", type=Path, nargs="+", required=True, help="saved ceiling sets (.npz) to score on")
+    ap.add_argument("--out", type=Path, default=None, help="write the result as JSON here")
+    ap.add_argument("--override", dest="overrides", action="append", default=[],
+                    help="Hydra override of the config whose dynamics model labels the set (repeatable)")
+    args = ap.parse_args(argv)
+    r = run(args.runs, args.sets, args.overrides)
+    report(format_table(r), r, args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

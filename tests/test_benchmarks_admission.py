@@ -1,0 +1,35 @@
+"""The admission benchmark's scoring (what share of good / bad transitions a precondition admits)."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from benchmarks.admission import run, score
+
+
+class KnownMDE:
+    """predict -> the given mean and std."""
+
+    def __init__(self, mu, sd):
+        self.mu, self.sd = torch.tensor(mu, dtype=torch.float64), torch.tensor(sd, dtype=torch.float64)
+
+    def predict(self, X):
+        return self.mu, self.sd
+
+
+def test_shares_follow_the_test_precondition():
+    # rows: good pour admitted, good pour refused (std), bad pour admitted, good move admitted, bad move refused
+    data = {"X": torch.zeros(5, 8), "exp": SimpleNamespace(beta_test=2.0, d_max=0.07),
+            "good": np.array([True, True, False, True, False]), "pour": np.array([True, True, True, False, False]),
+            "partial": np.array([False, True, False, False, False])}
+    mde = KnownMDE([0.01, 0.01, 0.02, 0.03, 0.10], [0.01, 0.05, 0.01, 0.01, 0.01])
+    r = score(mde, data)
+    assert r["pour_good"] == 0.5 and r["pour_bad"] == 1.0 and r["move_good"] == 1.0 and r["move_bad"] == 0.0
+    assert r["partial_good"] == 0.0 and r["partial_good_std_median"] == pytest.approx(0.05)
+
+
+def test_a_directory_without_saved_mdes_is_refused_before_any_compute(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no seed\\*/METHOD/mde_iterNNN.pt under"):
+        run([tmp_path], [tmp_path / "set.npz"], [])
