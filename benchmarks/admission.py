@@ -8,7 +8,8 @@ runs with the test precondition (mu + beta_test sigma < d_max) on transitions wh
 the share of good transitions (deviation < d_max) admitted, of bad ones admitted, per skill, and for the
 partial first pours (a full cup that pours part of its water into the target cup and keeps some), the pours
 that goals inside the range need. Prints one row per (method, iteration), the mean over the runs' seeds;
-writes JSON with every run.
+writes JSON with every run. ``--leave-one-set-out`` (no runs): the config's MDE fitted on all sets but one and
+scored on the one left out, what a ceiling-sized dataset admits.
 """
 
 from __future__ import annotations
@@ -51,8 +52,9 @@ def labelled_set(paths: Sequence[Path], overrides: Sequence[str]) -> dict[str, A
     pour = a[:, 0] == POUR
     # state = (x, y, theta, fraction in the poured cup, fraction in the target cup)
     partial = pour & (s[:, 3] > 0.5) & (s2[:, 4] - s[:, 4] > 0.15) & (s2[:, 3] > 0.2)
-    return {"X": torch.as_tensor(features(s, a)), "good": y < exp.d_max, "pour": pour, "partial": partial,
-            "exp": exp, "n": len(y), "label_mean_partial": float(np.mean(y[partial])) if partial.any() else None}
+    return {"X": torch.as_tensor(features(s, a)), "y": torch.as_tensor(y), "good": y < exp.d_max, "pour": pour,
+            "partial": partial, "exp": exp, "n": len(y), "mde": cfg["mde"],
+            "label_mean_partial": float(np.mean(y[partial])) if partial.any() else None}
 
 
 def score(mde: Any, data: dict[str, Any]) -> dict[str, float | None]:
@@ -88,6 +90,29 @@ def run(run_dirs: Sequence[Path], sets: Sequence[Path], overrides: Sequence[str]
             "label_mean_partial": data["label_mean_partial"], "rows": rows}
 
 
+def leave_one_set_out(sets: Sequence[Path], overrides: Sequence[str]) -> dict[str, Any]:
+    """The config's MDE fitted on all sets but one, scored on the one left out (a ceiling-sized reference)."""
+    from hydra.utils import instantiate
+
+    if len(sets) < 2:
+        raise ValueError(f"--leave-one-set-out needs at least 2 --sets, got {len(sets)}")
+    parts = [labelled_set([p], overrides) for p in sets]
+    rows = []
+    for k, held in enumerate(parts):
+        rest = [d for j, d in enumerate(parts) if j != k]
+        mde = instantiate(dict(held["mde"]), _convert_="all")
+        mde.fit(np.concatenate([d["X"].numpy() for d in rest]), np.concatenate([d["y"].numpy() for d in rest]))
+        rows.append({"run": "leave-one-set-out", "seed": f"set{k}", "method": "ceiling_mde", "iteration": 0,
+                     "held_out": str(sets[k]), "partial_good_n": int(np.sum(held["partial"] & held["good"])),
+                     **score(mde, held)})
+    return {"sets": [str(p) for p in sets], "overrides": list(overrides),
+            "counts": {"transitions": sum(d["n"] for d in parts), "pours": sum(int(d["pour"].sum()) for d in parts),
+                       "pours_good": sum(int((d["pour"] & d["good"]).sum()) for d in parts),
+                       "partial_first_pours": sum(int(d["partial"].sum()) for d in parts),
+                       "partial_good": sum(int((d["partial"] & d["good"]).sum()) for d in parts)},
+            "rows": rows}
+
+
 KEYS = ("pour_good", "pour_bad", "move_good", "partial_good", "partial_good_std_median")
 
 
@@ -110,13 +135,20 @@ def format_table(r: dict[str, Any]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.admission", description=__doc__.split("\n\n")[0])
-    ap.add_argument("runs", type=Path, nargs="+", help="run directories (seed*/METHOD/mde_iterNNN.pt below)")
+    ap.add_argument("runs", type=Path, nargs="*", help="run directories (seed*/METHOD/mde_iterNNN.pt below)")
     ap.add_argument("--sets", type=Path, nargs="+", required=True, help="saved ceiling sets (.npz) to score on")
     ap.add_argument("--out", type=Path, default=None, help="write the result as JSON here")
     ap.add_argument("--override", dest="overrides", action="append", default=[],
                     help="Hydra override of the config whose dynamics model labels the set (repeatable)")
+    ap.add_argument("--leave-one-set-out", action="store_true",
+                    help="instead of runs: fit the config's MDE on all --sets but one, score the one left out")
     args = ap.parse_args(argv)
-    r = run(args.runs, args.sets, args.overrides)
+    if args.leave_one_set_out:
+        r = leave_one_set_out(args.sets, args.overrides)
+    elif not args.runs:
+        ap.error("give run directories, or --leave-one-set-out")
+    else:
+        r = run(args.runs, args.sets, args.overrides)
     report(format_table(r), r, args.out)
     return 0
 

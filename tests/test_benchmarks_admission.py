@@ -33,3 +33,10 @@ def test_shares_follow_the_test_precondition():
 def test_a_directory_without_saved_mdes_is_refused_before_any_compute(tmp_path):
     with pytest.raises(FileNotFoundError, match="no seed\\*/METHOD/mde_iterNNN.pt under"):
         run([tmp_path], [tmp_path / "set.npz"], [])
+
+
+def test_leave_one_set_out_needs_two_sets(tmp_path):
+    from benchmarks.admission import leave_one_set_out
+
+    with pytest.raises(ValueError, match="--leave-one-set-out needs at least 2 --sets, got 1"):
+        leave_one_set_out([tmp_path / "a.npz"], [])
