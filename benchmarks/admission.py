@@ -9,7 +9,8 @@ the share of good transitions (deviation < d_max) admitted, of bad ones admitted
 partial first pours (a full cup that pours part of its water into the target cup and keeps some), the pours
 that goals inside the range need. Prints one row per (method, iteration), the mean over the runs' seeds;
 writes JSON with every run. ``--leave-one-set-out`` (no runs): the config's MDE fitted on all sets but one and
-scored on the one left out, what a ceiling-sized dataset admits.
+scored on the one left out, what a ceiling-sized dataset admits (``--trajectories 8 16 32 64``: fitted on that
+many of each training set, a learning curve; the column ``it/n`` is then the training trajectories in all).
 """
 
 from __future__ import annotations
@@ -26,11 +27,13 @@ from benchmarks._cli import report
 _MDE_FILE = re.compile(r"mde_iter(\d{3})\.pt$")
 
 
-def labelled_set(paths: Sequence[Path], overrides: Sequence[str]) -> dict[str, Any]:
-    """Features, labels and masks of the transitions of saved ceiling sets (labels from the config's model)."""
+def labelled_set(paths: Sequence[Path], overrides: Sequence[str], trajectories: int | None = None) -> dict[str, Any]:
+    """Features, labels and masks of the transitions of saved ceiling sets (labels from the config's model);
+    ``trajectories``: only that many of each set (half random plans, half random actions)."""
     import torch
 
     from active.experiment import ExperimentConfig
+    from active.ladder import ceiling_subset
     from active.loop import label_transitions, planning_dynamics
     from active.run import compose_config
     from planner import features
@@ -46,7 +49,8 @@ def labelled_set(paths: Sequence[Path], overrides: Sequence[str]) -> dict[str, A
         if not Path(p).exists():
             raise FileNotFoundError(f"--sets {p}: no such file")
         with np.load(p) as f:
-            parts.append({k: f[k] for k in ("s", "a", "s_next")})
+            data = {k: f[k] for k in f.files}
+        parts.append(data if trajectories is None else ceiling_subset(data, trajectories))
     s, a, s2 = (np.concatenate([d[k] for d in parts]) for k in ("s", "a", "s_next"))
     y = label_transitions(dyn, s, a, s2, world.distance_weights)
     pour = a[:, 0] == POUR
@@ -90,21 +94,28 @@ def run(run_dirs: Sequence[Path], sets: Sequence[Path], overrides: Sequence[str]
             "label_mean_partial": data["label_mean_partial"], "rows": rows}
 
 
-def leave_one_set_out(sets: Sequence[Path], overrides: Sequence[str]) -> dict[str, Any]:
-    """The config's MDE fitted on all sets but one, scored on the one left out (a ceiling-sized reference)."""
+def leave_one_set_out(sets: Sequence[Path], overrides: Sequence[str],
+                      sizes: Sequence[int | None] = (None,)) -> dict[str, Any]:
+    """The config's MDE fitted on all sets but one, scored on the one left out (a ceiling-sized reference);
+    ``sizes``: trajectories taken from each training set (None: all), one fit per size (rows' ``iteration``:
+    the training trajectories in all)."""
     from hydra.utils import instantiate
 
     if len(sets) < 2:
         raise ValueError(f"--leave-one-set-out needs at least 2 --sets, got {len(sets)}")
     parts = [labelled_set([p], overrides) for p in sets]
     rows = []
-    for k, held in enumerate(parts):
-        rest = [d for j, d in enumerate(parts) if j != k]
-        mde = instantiate(dict(held["mde"]), _convert_="all")
-        mde.fit(np.concatenate([d["X"].numpy() for d in rest]), np.concatenate([d["y"].numpy() for d in rest]))
-        rows.append({"run": "leave-one-set-out", "seed": f"set{k}", "method": "ceiling_mde", "iteration": 0,
-                     "held_out": str(sets[k]), "partial_good_n": int(np.sum(held["partial"] & held["good"])),
-                     **score(mde, held)})
+    for size in sizes:
+        train = parts if size is None else [labelled_set([p], overrides, size) for p in sets]
+        for k, held in enumerate(parts):
+            rest = [d for j, d in enumerate(train) if j != k]
+            mde = instantiate(dict(held["mde"]), _convert_="all")
+            mde.fit(np.concatenate([d["X"].numpy() for d in rest]), np.concatenate([d["y"].numpy() for d in rest]))
+            with np.load(sets[k]) as f:
+                n_set = len(f["category"])
+            rows.append({"run": "leave-one-set-out", "seed": f"set{k}", "method": "ceiling_mde",
+                         "iteration": (n_set if size is None else size) * len(rest), "held_out": str(sets[k]),
+                         "partial_good_n": int(np.sum(held["partial"] & held["good"])), **score(mde, held)})
     return {"sets": [str(p) for p in sets], "overrides": list(overrides),
             "counts": {"transitions": sum(d["n"] for d in parts), "pours": sum(int(d["pour"].sum()) for d in parts),
                        "pours_good": sum(int((d["pour"] & d["good"]).sum()) for d in parts),
@@ -120,7 +131,7 @@ def format_table(r: dict[str, Any]) -> str:
     c = r["counts"]
     lines = [f"labelled set: {c['transitions']} transitions, {c['pours']} pours ({c['pours_good']} good), "
              f"{c['partial_first_pours']} partial first pours ({c['partial_good']} good)",
-             f"{'method':<16} {'it':>3} {'runs':>4} " + " ".join(f"{k:>23}" for k in KEYS)]
+             f"{'method':<16} {'it/n':>4} {'runs':>4} " + " ".join(f"{k:>23}" for k in KEYS)]
     groups: dict[tuple[str, int], list[dict]] = {}
     for row in r["rows"]:
         groups.setdefault((row["method"], row["iteration"]), []).append(row)
@@ -129,7 +140,7 @@ def format_table(r: dict[str, Any]) -> str:
         for k in KEYS:
             v = [x[k] for x in rows if x[k] is not None]
             cells.append(f"{np.mean(v):>23.3f}" if v else f"{'-':>23}")
-        lines.append(f"{method:<16} {it:>3} {len(rows):>4} " + " ".join(cells))
+        lines.append(f"{method:<16} {it:>4} {len(rows):>4} " + " ".join(cells))
     return "\n".join(lines)
 
 
@@ -142,9 +153,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="Hydra override of the config whose dynamics model labels the set (repeatable)")
     ap.add_argument("--leave-one-set-out", action="store_true",
                     help="instead of runs: fit the config's MDE on all --sets but one, score the one left out")
+    ap.add_argument("--trajectories", type=int, nargs="+", default=None,
+                    help="with --leave-one-set-out: fit on this many trajectories of each training set (one fit each)")
     args = ap.parse_args(argv)
+    if args.trajectories and not args.leave_one_set_out:
+        ap.error("--trajectories goes with --leave-one-set-out")
     if args.leave_one_set_out:
-        r = leave_one_set_out(args.sets, args.overrides)
+        r = leave_one_set_out(args.sets, args.overrides, args.trajectories or (None,))
     elif not args.runs:
         ap.error("give run directories, or --leave-one-set-out")
     else:

@@ -40,3 +40,11 @@ def test_leave_one_set_out_needs_two_sets(tmp_path):
 
     with pytest.raises(ValueError, match="--leave-one-set-out needs at least 2 --sets, got 1"):
         leave_one_set_out([tmp_path / "a.npz"], [])
+
+
+def test_trajectories_without_leave_one_set_out_is_refused(tmp_path, capsys):
+    from benchmarks.admission import main
+
+    with pytest.raises(SystemExit):
+        main([str(tmp_path), "--sets", str(tmp_path / "a.npz"), "--trajectories", "8"])
+    assert "--trajectories goes with --leave-one-set-out" in capsys.readouterr().err
