@@ -613,7 +613,10 @@ def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):
         kw = {k: v for k, v in dict(method_kwargs or {}).items() if k in params}
         if "d_max" in params and "d_max" not in partial.keywords:
             kw["d_max"] = exp.d_max
-        return partial(model=getattr(mde, "model", mde), **kw)
+        # an MDE's marginal view reads its fit's own factorisation (GPyTorch's refactorisation can fail on it)
+        model = getattr(mde, "marginal_model", None)
+        model = getattr(mde, "model", mde) if model is None else model
+        return partial(model=model, **kw)
 
     make.accepts = _keywords(cls) - {"model"}  # type: ignore[attr-defined]
     make.target = cfg["_target_"]  # type: ignore[attr-defined]

@@ -321,6 +321,29 @@ class DiagonalModel(Model):
         return post if posterior_transform is None else posterior_transform(post)
 
 
+class MarginalModel(DiagonalModel):
+    """BoTorch view of an MDE's per-row marginals: its ``mean_var(X, observation_noise)`` (label units, the
+    fit's cached factorisation, no autograd), which is what the trajectory acquisitions read.
+
+    GPyTorch's own posterior refactorises the kernel with a smaller jitter cap than the fit accepts and can
+    fail on a fit the MDE uses; this view gives the acquisitions the planner's numbers. A tensor
+    ``observation_noise`` (BoTorch's "add this noise variance") is added to the latent variance.
+    """
+
+    def __init__(self, mde: Any) -> None:
+        super().__init__()
+        self._mde = mde
+
+    def mean_var(self, X: Tensor, observation_noise: bool | Tensor) -> tuple[Tensor, Tensor]:
+        flat = X.detach().reshape(-1, X.shape[-1])
+        extra = isinstance(observation_noise, Tensor)
+        mean, var = self._mde.mean_var(flat, observation_noise=False if extra else bool(observation_noise))
+        mean, var = mean.reshape(X.shape[:-1]).to(X.dtype), var.reshape(X.shape[:-1]).to(X.dtype)
+        if extra:
+            var = var + observation_noise.to(var).reshape(var.shape)
+        return mean, var
+
+
 class PriorMDEModel(DiagonalModel):
     """BoTorch model of the MDE before any data: mean 0, std ``prior_std`` (label units), iid.
 

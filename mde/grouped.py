@@ -23,7 +23,7 @@ from torch import Tensor
 import safeio
 
 from .config import MDEConfig
-from .gp import DTYPE, DiagonalModel
+from .gp import DTYPE, MarginalModel
 from .model import HeteroscedasticGPMDE, _as_labels, _as_matrix
 
 _FORMAT = "mde.GroupedMDE"
@@ -84,9 +84,16 @@ class GroupedMDE:
         return {f"group {g:g}": c.fit_info for g, c in self._children.items()}
 
     @property
-    def model(self) -> "GroupedModel":
-        """BoTorch model routing each row to its group's GP (label units; see :class:`GroupedModel`)."""
-        return GroupedModel(self)
+    def model(self) -> MarginalModel:
+        """BoTorch model of the per-row marginals, each row's from its group's GP (label units; rows of different
+        groups are independent by construction, rows of one group come with their marginal variances only,
+        a diagonal covariance: what the trajectory acquisitions read). See :class:`mde.gp.MarginalModel`."""
+        return MarginalModel(self)
+
+    @property
+    def marginal_model(self) -> MarginalModel:
+        """The same as :attr:`model` (the acquisitions' view of every MDE kind)."""
+        return MarginalModel(self)
 
     def posterior(self, X: Tensor, observation_noise: bool = False) -> GPyTorchPosterior:
         return self.model.posterior(X, observation_noise=observation_noise)
@@ -115,7 +122,7 @@ class GroupedMDE:
         self._X, self._y, self._n_features = X, y, int(X.shape[1])
         return self
 
-    def _route(self, X: Any, fn: str) -> list[Tensor]:
+    def _route(self, X: Any, fn: str, **kwargs: Any) -> list[Tensor]:
         X = _as_matrix(X, "X")
         if self._n_features is not None and X.shape[1] != self._n_features:
             raise ValueError(f"X has d={X.shape[1]} features but the MDE was fitted with d={self._n_features}")
@@ -123,7 +130,7 @@ class GroupedMDE:
         outs: list[Tensor] | None = None
         for value in torch.unique(g).tolist():
             rows = g == value
-            res = getattr(self._children.get(value, self._prior), fn)(X[rows])
+            res = getattr(self._children.get(value, self._prior), fn)(X[rows], **kwargs)
             res = res if isinstance(res, tuple) else (res,)
             if outs is None:
                 outs = [torch.empty(X.shape[0], dtype=r.dtype) for r in res]
@@ -135,6 +142,11 @@ class GroupedMDE:
         """Mean and predictive std of the deviation at ``X`` (n x d), label units, no autograd."""
         mean, std = self._route(X, "predict")
         return mean, std
+
+    def mean_var(self, X: Any, observation_noise: bool = True) -> tuple[Tensor, Tensor]:
+        """Mean and variance at ``X`` (n x d), each row's from its group's GP (label units, no autograd)."""
+        mean, var = self._route(X, "mean_var", observation_noise=observation_noise)
+        return mean, var
 
     def noise_std(self, X: Any) -> Tensor:
         """Std of the observation noise alone at ``X`` (label units)."""
@@ -165,35 +177,3 @@ class GroupedMDE:
     def __repr__(self) -> str:
         parts = ", ".join(f"{g:g}: {c.n_train}" for g, c in sorted(self._children.items()))
         return f"GroupedMDE(group_column={self._config.group_column}, n_train per group {{{parts}}})"
-
-
-class GroupedModel(DiagonalModel):
-    """BoTorch view of a :class:`GroupedMDE`: each row's posterior is its group GP's.
-
-    Rows of different groups are independent by construction; rows of one group are returned
-    with their marginal variances only (a diagonal covariance), which is what the trajectory
-    acquisitions of this project read (per-step mean and std). The numbers are the group MDE's
-    :meth:`HeteroscedasticGPMDE.mean_var` (its cached factorisation, no autograd).
-    """
-
-    def __init__(self, mde: GroupedMDE) -> None:
-        super().__init__()
-        self._mde = mde
-
-    def mean_var(self, X: Tensor, observation_noise: bool | Tensor) -> tuple[Tensor, Tensor]:
-        """``X``: batch x q x d -> mean and variance over batch x q."""
-        flat = X.reshape(-1, X.shape[-1])
-        g = self._mde.group_of(flat).to(flat.device)
-        mean = torch.empty(flat.shape[0], dtype=X.dtype, device=X.device)
-        var = torch.empty_like(mean)
-        for value in torch.unique(g).tolist():
-            rows = g == value
-            child = self._mde._children.get(value, self._mde._prior)
-            if isinstance(observation_noise, Tensor):  # a caller's own noise: GPyTorch's posterior adds it
-                post = child.model.posterior(flat[rows], observation_noise=observation_noise)
-                m, v = post.mean.reshape(-1), post.variance.reshape(-1)
-            else:  # the fit's cached factorisation, the numbers the planner's precondition reads
-                m, v = child.mean_var(flat[rows].detach(), observation_noise=bool(observation_noise))
-            mean[rows] = m.to(X.dtype)
-            var[rows] = v.to(X.dtype)
-        return mean.reshape(X.shape[:-1]), var.reshape(X.shape[:-1])

@@ -49,6 +49,7 @@ from .config import MDEConfig
 from .gp import (
     DTYPE,
     MDEGP,
+    MarginalModel,
     PriorMDEModel,
     build_mean_gp,
     build_noise_gp,
@@ -158,6 +159,13 @@ class HeteroscedasticGPMDE:
     def model(self) -> Model:
         """BoTorch model whose posterior is in label units (see class docstring)."""
         return self._prior_model if self._fitted is None else self._fitted.mean_model
+
+    @property
+    def marginal_model(self) -> MarginalModel:
+        """BoTorch view of :meth:`mean_var` (per-row marginals, the fit's cached factorisation): what the
+        acquisitions read, so that they never refactorise a kernel the fit accepted (see :attr:`model` for
+        the full GPyTorch posterior)."""
+        return MarginalModel(self)
 
     @property
     def noise_model(self) -> SingleTaskGP | None:

@@ -123,3 +123,23 @@ def test_grouped_acquisition_reads_the_fits_own_factorisation():
     assert (latent < std**2).all()  # without observation noise: the latent variance alone
     scores = DiscountedMaxUCB(mde.model, c=0.1)(trajectories)
     assert scores.shape == (4,) and torch.isfinite(scores).all()
+
+
+def test_the_ungrouped_mde_gives_acquisitions_the_same_factorisation():
+    """The same 40 pours on one GP (the ablation ``mde._target_=mde.HeteroscedasticGPMDE``): the acquisitions'
+    view (``marginal_model``, what ``active.loop.acquisition_factory`` hands them) reads the fit's cache."""
+    from active.acquisition import DiscountedMaxUCB
+
+    d = torch.load(Path(__file__).parent / "data" / "mde_gpytorch_cholesky_cap.pt")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mde = HeteroscedasticGPMDE(num_threads=1).fit(d["X"], d["y"])
+    trajectories = d["X"][:36].reshape(4, 9, -1)
+    post = mde.marginal_model.posterior(trajectories, observation_noise=True)
+    mean, std = mde.predict(d["X"][:36])
+    torch.testing.assert_close(post.mean.reshape(-1), mean, rtol=0, atol=1e-12)
+    torch.testing.assert_close(post.variance.reshape(-1).sqrt(), std, rtol=1e-12, atol=1e-12)
+    extra = mde.marginal_model.posterior(trajectories, observation_noise=torch.full((4, 9, 1), 0.01))
+    latent = mde.marginal_model.posterior(trajectories).variance
+    torch.testing.assert_close(extra.variance, latent + 0.01)
+    assert torch.isfinite(DiscountedMaxUCB(mde.marginal_model, c=0.1)(trajectories)).all()
