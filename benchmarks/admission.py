@@ -11,6 +11,9 @@ that goals inside the range need. Prints one row per (method, iteration), the me
 writes JSON with every run. ``--leave-one-set-out`` (no runs): the config's MDE fitted on all sets but one and
 scored on the one left out, what a ceiling-sized dataset admits (``--trajectories 8 16 32 64``: fitted on that
 many of each training set, a learning curve; the column ``it/n`` is then the training trajectories in all).
+``--refit 4 8 20`` (with runs): instead of the saved MDEs, the config's MDE (overrides apply, e.g.
+``mde.lengthscale_max=2``) fitted on each run's own data as it stood after those iterations (``dataset.pt``, cut
+at ``results.csv``'s transition counts): what another MDE would have admitted on the same data.
 """
 
 from __future__ import annotations
@@ -75,7 +78,30 @@ def score(mde: Any, data: dict[str, Any]) -> dict[str, float | None]:
             "partial_good_std_median": float(np.median(sd[partial & good])) if (partial & good).any() else None}
 
 
-def run(run_dirs: Sequence[Path], sets: Sequence[Path], overrides: Sequence[str]) -> dict[str, Any]:
+def refitted(method_dir: Path, iterations: Sequence[int], mde_cfg: Any) -> list[tuple[int, Any]]:
+    """The config's MDE fitted on a run's own data as it stood after each of ``iterations`` (those completed)."""
+    import csv
+
+    from hydra.utils import instantiate
+
+    from active.io import load_torch
+
+    data = load_torch(method_dir / "dataset.pt")
+    with open(method_dir / "results.csv", newline="") as fh:
+        counts = {int(r["iteration"]): int(r["n_transitions"]) for r in csv.DictReader(fh)}
+    out = []
+    for it in iterations:
+        if it not in counts:
+            continue
+        n = counts[it]
+        mde = instantiate(dict(mde_cfg), _convert_="all")
+        mde.fit(data["X"][:n].numpy(), data["y"][:n].numpy())
+        out.append((it, mde))
+    return out
+
+
+def run(run_dirs: Sequence[Path], sets: Sequence[Path], overrides: Sequence[str],
+        refit: Sequence[int] | None = None) -> dict[str, Any]:
     import mde as mde_pkg
 
     files = sorted(f for d in run_dirs for f in Path(d).glob("seed*/*/mde_iter*.pt") if _MDE_FILE.search(f.name))
@@ -83,14 +109,18 @@ def run(run_dirs: Sequence[Path], sets: Sequence[Path], overrides: Sequence[str]
         raise FileNotFoundError(f"no seed*/METHOD/mde_iterNNN.pt under {[str(d) for d in run_dirs]}")
     data = labelled_set(sets, overrides)
     rows = []
-    for f in files:
+    if refit:
+        for method_dir in sorted({f.parent for f in files}):
+            base = {"run": str(method_dir.parent.parent), "seed": method_dir.parent.name, "method": method_dir.name}
+            rows += [{**base, "iteration": it, **score(m, data)} for it, m in refitted(method_dir, refit, data["mde"])]
+    for f in [] if refit else files:
         row = {"run": str(f.parents[2]), "seed": f.parents[1].name, "method": f.parent.name,
                "iteration": int(_MDE_FILE.search(f.name).group(1))}
         rows.append({**row, **score(mde_pkg.load(f), data)})
     counts = {k: int(np.sum(data[m])) for k, m in (("pours", "pour"), ("partial_first_pours", "partial"))}
     counts.update(transitions=data["n"], pours_good=int(np.sum(data["pour"] & data["good"])),
                   partial_good=int(np.sum(data["partial"] & data["good"])))
-    return {"sets": [str(p) for p in sets], "overrides": list(overrides), "counts": counts,
+    return {"sets": [str(p) for p in sets], "overrides": list(overrides), "refit": list(refit or []), "counts": counts,
             "label_mean_partial": data["label_mean_partial"], "rows": rows}
 
 
@@ -155,7 +185,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="instead of runs: fit the config's MDE on all --sets but one, score the one left out")
     ap.add_argument("--trajectories", type=int, nargs="+", default=None,
                     help="with --leave-one-set-out: fit on this many trajectories of each training set (one fit each)")
+    ap.add_argument("--refit", type=int, nargs="+", default=None,
+                    help="with runs: fit the config's MDE on each run's data after these iterations instead of "
+                         "scoring its saved MDEs")
     args = ap.parse_args(argv)
+    if args.refit and (args.leave_one_set_out or not args.runs):
+        ap.error("--refit goes with run directories, not --leave-one-set-out")
     if args.trajectories and not args.leave_one_set_out:
         ap.error("--trajectories goes with --leave-one-set-out")
     if args.leave_one_set_out:
@@ -163,7 +198,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     elif not args.runs:
         ap.error("give run directories, or --leave-one-set-out")
     else:
-        r = run(args.runs, args.sets, args.overrides)
+        r = run(args.runs, args.sets, args.overrides, args.refit)
     report(format_table(r), r, args.out)
     return 0
 

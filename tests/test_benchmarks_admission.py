@@ -48,3 +48,32 @@ def test_trajectories_without_leave_one_set_out_is_refused(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main([str(tmp_path), "--sets", str(tmp_path / "a.npz"), "--trajectories", "8"])
     assert "--trajectories goes with --leave-one-set-out" in capsys.readouterr().err
+
+
+class RecordingMDE:
+    """fit -> remembers how many rows it saw (a stand-in for the config's MDE)."""
+
+    def __init__(self, tag: str = ""):
+        self.tag, self.n = tag, None
+
+    def fit(self, X, y):
+        self.n = len(y)
+
+
+def test_refit_cuts_a_runs_data_at_each_iterations_transition_count(tmp_path):
+    from active.io import save_torch
+    from benchmarks.admission import refitted
+
+    save_torch(tmp_path / "dataset.pt", {"X": torch.randn(12, 3), "y": torch.rand(12)})
+    (tmp_path / "results.csv").write_text("iteration,n_transitions\n1,4\n2,9\n3,12\n")
+    cfg = {"_target_": "tests.test_benchmarks_admission.RecordingMDE", "tag": "x"}
+    fits = refitted(tmp_path, [1, 3, 7], cfg)  # iteration 7 was never completed: skipped
+    assert [(it, m.n, m.tag) for it, m in fits] == [(1, 4, "x"), (3, 12, "x")]
+
+
+def test_refit_without_runs_is_refused(tmp_path, capsys):
+    from benchmarks.admission import main
+
+    with pytest.raises(SystemExit):
+        main(["--sets", str(tmp_path / "a.npz"), "--leave-one-set-out", "--refit", "4"])
+    assert "--refit goes with run directories" in capsys.readouterr().err
