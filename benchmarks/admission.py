@@ -113,10 +113,11 @@ def run(run_dirs: Sequence[Path], sets: Sequence[Path], overrides: Sequence[str]
         for method_dir in sorted({f.parent for f in files}):
             base = {"run": str(method_dir.parent.parent), "seed": method_dir.parent.name, "method": method_dir.name}
             rows += [{**base, "iteration": it, **score(m, data)} for it, m in refitted(method_dir, refit, data["mde"])]
-    for f in [] if refit else files:
-        row = {"run": str(f.parents[2]), "seed": f.parents[1].name, "method": f.parent.name,
-               "iteration": int(_MDE_FILE.search(f.name).group(1))}
-        rows.append({**row, **score(mde_pkg.load(f), data)})
+    else:
+        for f in files:
+            row = {"run": str(f.parents[2]), "seed": f.parents[1].name, "method": f.parent.name,
+                   "iteration": int(_MDE_FILE.search(f.name).group(1))}
+            rows.append({**row, **score(mde_pkg.load(f), data)})
     counts = {k: int(np.sum(data[m])) for k, m in (("pours", "pour"), ("partial_first_pours", "partial"))}
     counts.update(transitions=data["n"], pours_good=int(np.sum(data["pour"] & data["good"])),
                   partial_good=int(np.sum(data["partial"] & data["good"])))

@@ -25,27 +25,9 @@ def test_fit_survives_abnormal_line_search_stops():
     assert (mean - d["y"]).abs().median() < 0.05  # it learned the data, not the prior (mean 0, std 1)
 
 
-def _explicit_gp_mean(model, Xq):
-    """A fitted SingleTaskGP's posterior mean from explicit float64 differences (no |a|^2 + |b|^2 - 2ab
-    expansion): the reference when lengthscales span 1e-8 to 1e4."""
-    from mde.gp import matern_from_dist, train_inputs_transformed
-
-    ls = model.covar_module.base_kernel.lengthscale.detach().reshape(-1)
-    os_ = model.covar_module.outputscale.detach()
-    Xt = train_inputs_transformed(model).double()
-    tf = getattr(model, "input_transform", None)
-    Xqt = Xq if tf is None else tf(Xq)
-    k = lambda A, B: matern_from_dist(((A[:, None] - B[None]) / ls).pow(2).sum(-1).sqrt(), 2.5) * os_  # noqa: E731
-    K = k(Xt, Xt) + torch.eye(len(Xt), dtype=torch.float64) * model.likelihood.noise.detach().reshape(-1)
-    c = model.mean_module.constant.detach()
-    z = k(Xqt, Xt) @ torch.linalg.solve(K, model.train_targets.double() - c) + c
-    otf = model.outcome_transform
-    return z * otf.stdvs.reshape(()) + otf.means.reshape(())
-
-
-def _explicit_gp_latent_var(model, Xq):
-    """A fitted SingleTaskGP's latent posterior variance (label units) from explicit float64 differences, with
-    its training noise (the reference where lengthscales span 1e-11 to 1e4)."""
+def _explicit_gp(model, Xq):
+    """A fitted SingleTaskGP's kernel from explicit float64 differences (no |a|^2 + |b|^2 - 2ab expansion), the
+    reference when lengthscales span 1e-11 to 1e4: (k, K with the training noise, transformed train and query inputs)."""
     from mde.gp import matern_from_dist, train_inputs_transformed
 
     ls = model.covar_module.base_kernel.lengthscale.detach().reshape(-1)
@@ -55,8 +37,23 @@ def _explicit_gp_latent_var(model, Xq):
     Xqt = Xq if tf is None else tf(Xq)
     k = lambda A, B: matern_from_dist(((A[:, None] - B[None]) / ls).pow(2).sum(-1).sqrt(), 2.5) * os_  # noqa: E731
     K = k(Xt, Xt) + torch.diag(model.likelihood.noise.detach().reshape(-1).expand(len(Xt)))
+    return k, K, Xt, Xqt
+
+
+def _explicit_gp_mean(model, Xq):
+    """The posterior mean (label units) from :func:`_explicit_gp`."""
+    k, K, Xt, Xqt = _explicit_gp(model, Xq)
+    c = model.mean_module.constant.detach()
+    z = k(Xqt, Xt) @ torch.linalg.solve(K, model.train_targets.double() - c) + c
+    otf = model.outcome_transform
+    return z * otf.stdvs.reshape(()) + otf.means.reshape(())
+
+
+def _explicit_gp_latent_var(model, Xq):
+    """The latent posterior variance (label units) from :func:`_explicit_gp`."""
+    k, K, Xt, Xqt = _explicit_gp(model, Xq)
     kq = k(Xqt, Xt)
-    var_z = os_ - (kq * torch.linalg.solve(K, kq.T).T).sum(-1)
+    var_z = k(Xqt[:1], Xqt[:1]).reshape(()) - (kq * torch.linalg.solve(K, kq.T).T).sum(-1)
     return var_z * model.outcome_transform.stdvs.reshape(()) ** 2
 
 
