@@ -30,6 +30,15 @@ from benchmarks._cli import report
 _MDE_FILE = re.compile(r"mde_iter(\d{3})\.pt$")
 
 
+def partial_first_pours(s: np.ndarray, a: np.ndarray, s_next: np.ndarray) -> np.ndarray:
+    """Mask of the pours from a (mostly) full cup that move over 0.15 of the water into the target cup and keep
+    over 0.2: what every goal under the cup's capacity needs. State = (x, y, theta, fraction in the poured cup,
+    fraction in the target cup)."""
+    from sim.skills import POUR
+
+    return (a[:, 0] == POUR) & (s[:, 3] > 0.5) & (s_next[:, 4] - s[:, 4] > 0.15) & (s_next[:, 3] > 0.2)
+
+
 def labelled_set(paths: Sequence[Path], overrides: Sequence[str], trajectories: int | None = None) -> dict[str, Any]:
     """Features, labels and masks of the transitions of saved ceiling sets (labels from the config's model);
     ``trajectories``: only that many of each set (half random plans, half random actions)."""
@@ -57,8 +66,7 @@ def labelled_set(paths: Sequence[Path], overrides: Sequence[str], trajectories: 
     s, a, s2 = (np.concatenate([d[k] for d in parts]) for k in ("s", "a", "s_next"))
     y = label_transitions(dyn, s, a, s2, world.distance_weights)
     pour = a[:, 0] == POUR
-    # state = (x, y, theta, fraction in the poured cup, fraction in the target cup)
-    partial = pour & (s[:, 3] > 0.5) & (s2[:, 4] - s[:, 4] > 0.15) & (s2[:, 3] > 0.2)
+    partial = partial_first_pours(s, a, s2)
     return {"X": torch.as_tensor(features(s, a)), "y": torch.as_tensor(y), "good": y < exp.d_max, "pour": pour,
             "partial": partial, "exp": exp, "n": len(y), "mde": cfg["mde"],
             "label_mean_partial": float(np.mean(y[partial])) if partial.any() else None}
