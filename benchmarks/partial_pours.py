@@ -96,6 +96,9 @@ def execute(executor: Any, world_name: str, jobs: list[tuple], what: str) -> lis
 
 def take_apart(sets: Sequence[Path], set_seeds: Sequence[int] | None, overrides: Sequence[str], slots: int,
                jitters: int, mde_files: Sequence[Path]) -> dict[str, Any]:
+    """Execute every partial first pour of ``sets`` again (history, rest, source world, plant poses; module
+    docstring) and return the per-pour outcomes and labels with their summary. Arguments are checked, and
+    the MDE files looked for, before anything is simulated."""
     import torch
 
     from active.experiment import ExperimentConfig
@@ -113,6 +116,9 @@ def take_apart(sets: Sequence[Path], set_seeds: Sequence[int] | None, overrides:
         raise ValueError(f"--jitters {jitters}: allowed >= 1")
     if set_seeds is not None and len(set_seeds) != len(sets):
         raise ValueError(f"--set-seeds: {len(set_seeds)} seeds for {len(sets)} --sets")
+    missing = [str(f) for f in mde_files if not Path(f).exists()]
+    if missing:
+        raise FileNotFoundError(f"--mde: no such file: {missing}")
     t_all = time.perf_counter()
     cfg = compose_config(list(overrides))
     exp = ExperimentConfig.from_mapping(cfg["experiment"])
@@ -159,8 +165,9 @@ def take_apart(sets: Sequence[Path], set_seeds: Sequence[int] | None, overrides:
     for k, p in enumerate(pours):
         row = {"set": p["set"], "trajectory": p["trajectory"], "step": p["step"], "slot": p["slot"],
                "x": float(p["pre"][0]), "y": float(p["pre"][1]), "theta": float(p["prefix"][-1][1]),
-               "hold": float(p["prefix"][-1][2]), "action": p["prefix"][-1].tolist(), "pre": p["pre"].tolist(), "recorded": p["recorded"].tolist(),
-               "model": pred[k].tolist(), "label_recorded": label(pred[k], p["recorded"])}
+               "hold": float(p["prefix"][-1][2]), "action": p["prefix"][-1].tolist(), "pre": p["pre"].tolist(),
+               "recorded": p["recorded"].tolist(), "model": pred[k].tolist(),
+               "label_recorded": label(pred[k], p["recorded"])}
         for name in runs:
             finals = outcomes[name][k]
             row[name] = [None if f is None else f.tolist() for f in finals]

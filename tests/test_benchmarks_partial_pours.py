@@ -58,6 +58,8 @@ def test_bad_arguments_are_refused_before_any_compute(tmp_path):
         take_apart([tmp_path / "a.npz"], None, [], 5, 0, [])
     with pytest.raises(ValueError, match="--set-seeds: 2 seeds for 1 --sets"):
         take_apart([tmp_path / "a.npz"], [0, 1], [], 5, 1, [])
+    with pytest.raises(FileNotFoundError, match="--mde: no such file"):
+        take_apart([tmp_path / "a.npz"], None, [], 5, 1, [tmp_path / "mde_iter001.pt"])
 
 
 def _row(model_tgt, hist, rest, source, jitter_labels):
