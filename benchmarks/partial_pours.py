@@ -139,8 +139,13 @@ def take_apart(sets: Sequence[Path], set_seeds: Sequence[int] | None, overrides:
     jit = [np.zeros(3)] + [draw_plant_jitter(world.plant, rng) for _ in range(jitters)]
     zero = np.zeros(3)
 
+    bounds = world.skills["move"]
+
     def rest(p: dict) -> np.ndarray:
-        x, y = p["pre"][:2]
+        """A move to where the cup already is (one settle; the observed pose is float32, so a pose on the move
+        range's edge can lie a rounding outside it), then the pour. Moves end on ``skills.lattice``: a pour that
+        is its trajectory's first action, from an off-lattice start, is poured from the nearest lattice point."""
+        x, y = (float(np.clip(v, *bounds[k])) for v, k in zip(p["pre"][:2], ("x", "y")))
         return np.array([move(x, y), p["prefix"][-1]])
 
     def slots_of(p: dict) -> list[int]:
