@@ -94,6 +94,17 @@ def execute(executor: Any, world_name: str, jobs: list[tuple], what: str) -> lis
     return out
 
 
+def from_rest(pre: np.ndarray, pour: np.ndarray, move_range: dict) -> np.ndarray:
+    """The pour alone from rest: a move to where the cup already is (one settle), then the pour. The observed
+    pose is float32, so a pose on the move range's edge can lie a rounding outside it: clipped into
+    ``move_range`` (``skills.move``). Moves end on ``skills.lattice``: a pour that is its trajectory's first
+    action, from an off-lattice start, is poured from the nearest lattice point."""
+    from sim.skills import move
+
+    x, y = (float(np.clip(v, *move_range[k])) for v, k in zip(pre[:2], ("x", "y")))
+    return np.array([move(x, y), np.asarray(pour, float)])
+
+
 def take_apart(sets: Sequence[Path], set_seeds: Sequence[int] | None, overrides: Sequence[str], slots: int,
                jitters: int, mde_files: Sequence[Path]) -> dict[str, Any]:
     """Execute every partial first pour of ``sets`` again (history, rest, source world, plant poses; module
@@ -105,7 +116,6 @@ def take_apart(sets: Sequence[Path], set_seeds: Sequence[int] | None, overrides:
     from active.loop import planning_dynamics
     from active.run import compose_config
     from sim.execute import PouringExecutor
-    from sim.skills import move
     from sim.world import WorldConfig
     from task import state_distance
     from task.problems import draw_plant_jitter
@@ -139,14 +149,8 @@ def take_apart(sets: Sequence[Path], set_seeds: Sequence[int] | None, overrides:
     jit = [np.zeros(3)] + [draw_plant_jitter(world.plant, rng) for _ in range(jitters)]
     zero = np.zeros(3)
 
-    bounds = world.skills["move"]
-
     def rest(p: dict) -> np.ndarray:
-        """A move to where the cup already is (one settle; the observed pose is float32, so a pose on the move
-        range's edge can lie a rounding outside it), then the pour. Moves end on ``skills.lattice``: a pour that
-        is its trajectory's first action, from an off-lattice start, is poured from the nearest lattice point."""
-        x, y = (float(np.clip(v, *bounds[k])) for v, k in zip(p["pre"][:2], ("x", "y")))
-        return np.array([move(x, y), p["prefix"][-1]])
+        return from_rest(p["pre"], p["prefix"][-1], world.skills["move"])
 
     def slots_of(p: dict) -> list[int]:
         return [p["slot"], *EXTRA_SLOTS[:slots - 1]]

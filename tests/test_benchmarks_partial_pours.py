@@ -94,3 +94,13 @@ def test_plot_draws_every_pour_including_one_no_plant_pose_admitted(tmp_path):
             {"x": 0.29, "y": 0.25, "theta": 1.3, "jitter_share_good": None, "labels_jitter": [0.02, None, None]}]
     path = plot({"pours": rows, "d_max": 0.07}, tmp_path / "pours.png")
     assert path.stat().st_size > 10_000
+
+
+def test_a_pour_from_rest_on_the_move_ranges_edge_stays_inside_it(world):
+    from benchmarks.partial_pours import from_rest
+    from sim.skills import validate_actions
+
+    pre = np.array([0.31, np.float32(0.36), 0.0, 1.0, 0.0])  # the observed pose, a rounding above y's bound
+    acts = from_rest(pre, np.array([1, 1.2, 0.5]), world.skills["move"])
+    np.testing.assert_allclose(acts, [[0, 0.31, 0.36], [1, 1.2, 0.5]])
+    validate_actions(world, [acts])  # would raise "move.y = 0.36 outside its range" without the clip
