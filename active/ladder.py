@@ -160,17 +160,29 @@ def outcomes(world, done: list) -> dict:
             "spill_over_limit": sum(r.final_spill > world.problems["max_spill"] for r in done)}
 
 
-def ceiling_dataset(world, pool, exp, executor, n_train: int, seed: int, batch: int = 32) -> dict:
+#: trajectories per simulated batch of a ceiling set: trajectory i runs in env slot i % CEILING_BATCH
+CEILING_BATCH = 32
+
+
+def ceiling_train_problems(world, n_train: int, seed: int) -> list:
+    """The problems (start, plant jitter, goal) of ladder seed ``seed``'s ceiling training set, in order."""
+    from sim.problems import sample_problems
+
+    from .loop import derive_seed
+
+    return sample_problems(world, n_train, derive_seed(seed, "ladder-ceiling-train"), world="target")
+
+
+def ceiling_dataset(world, pool, exp, executor, n_train: int, seed: int, batch: int = CEILING_BATCH) -> dict:
     """n_train target-world trajectories (half random plans of the model alone, half random action
     sequences), as arrays: s, a, s_next (transitions of stable trajectories), trajectory (each
     transition's trajectory index) and category (one per trajectory)."""
     from planner import ActionSampler
-    from sim.problems import sample_problems
 
     from .loop import _stack_steps, derive_seed
 
     n_plans = n_train // 2
-    train_probs = sample_problems(world, n_train, derive_seed(seed, "ladder-ceiling-train"), world="target")
+    train_probs = ceiling_train_problems(world, n_train, seed)
     plans = plan_all(pool, None, train_probs[:n_plans], exp, seed, "ceiling-train")
     sampler = ActionSampler(pool.config)
     rng = np.random.default_rng(derive_seed(seed, "ladder-ceiling-actions"))

@@ -31,7 +31,6 @@ import numpy as np
 
 from benchmarks._cli import report
 
-BATCH = 32
 EXTRA_SLOTS = (101, 202, 303, 404, 505, 606, 707)
 
 
@@ -48,9 +47,8 @@ def set_seed(path: Path, given: int | None) -> int:
 def find_pours(world: Any, paths: Sequence[Path], seeds: Sequence[int]) -> list[dict]:
     """Every partial first pour of the sets, with what re-executing it needs: its problem (start, plant
     jitter), its action prefix, the env slot it ran in (:func:`active.ladder.ceiling_dataset` runs batches
-    of 32 in order), its recorded pre- and post-pour states."""
-    from active.loop import derive_seed
-    from sim.problems import sample_problems
+    of ``CEILING_BATCH`` in order), its recorded pre- and post-pour states."""
+    from active.ladder import CEILING_BATCH, ceiling_train_problems
 
     from .admission import partial_first_pours
 
@@ -60,14 +58,14 @@ def find_pours(world: Any, paths: Sequence[Path], seeds: Sequence[int]) -> list[
             raise FileNotFoundError(f"--sets {path}: no such file")
         with np.load(path) as f:
             s, a, s2, traj, n = f["s"], f["a"], f["s_next"], f["trajectory"], len(f["category"])
-        probs = sample_problems(world, n, derive_seed(seed, "ladder-ceiling-train"), world="target")
+        probs = ceiling_train_problems(world, n, seed)
         for j in np.flatnonzero(partial_first_pours(s, a, s2)):
             i = int(traj[j])
             first = int(np.flatnonzero(traj == i)[0])
             if not np.allclose(s[first, :3], probs[i].start[:3], atol=1e-6):
                 raise ValueError(f"--sets {path}: trajectory {i} starts at {s[first, :3]}, not at the start of "
                                  f"ladder seed {seed}'s problem {i} ({probs[i].start[:3]}); pass the right --set-seeds")
-            pours.append({"set": str(path), "trajectory": i, "step": j - first, "slot": i % BATCH,
+            pours.append({"set": str(path), "trajectory": i, "step": j - first, "slot": i % CEILING_BATCH,
                           "start": probs[i].start[:3], "plant_jitter": probs[i].plant_jitter,
                           "prefix": a[first:j + 1], "pre": s[j], "recorded": s2[j]})
     return pours
@@ -76,12 +74,15 @@ def find_pours(world: Any, paths: Sequence[Path], seeds: Sequence[int]) -> list[
 def execute(executor: Any, world_name: str, jobs: list[tuple], what: str) -> list[np.ndarray | None]:
     """Final states of (start, actions, plant jitter, slot) jobs in batches of 32 (None where the start
     overlaps an obstacle, e.g. a jittered plant, or the trajectory did not run to its end)."""
+    from active.ladder import CEILING_BATCH
+
     t0 = time.perf_counter()
-    ok = [executor.start_obstacles(world_name, np.array([j[0]]), np.array([j[2]]))[0] is None for j in jobs]
+    hits = executor.start_obstacles(world_name, np.array([j[0] for j in jobs]), np.array([j[2] for j in jobs]))
+    ok = [h is None for h in hits]
     run = [j for j, k in zip(jobs, ok) if k]
     res = []
-    for c in range(0, len(run), BATCH):
-        ch = run[c:c + BATCH]
+    for c in range(0, len(run), CEILING_BATCH):
+        ch = run[c:c + CEILING_BATCH]
         res += executor.run(world_name, np.array([j[0] for j in ch]), [j[1] for j in ch],
                             plant_jitter=np.array([j[2] for j in ch]), slots=[j[3] for j in ch])
     it = iter(res)

@@ -19,10 +19,9 @@ def world():
 def _set(world, path: Path, seed: int) -> Path:
     """A stand-in ceiling set of 3 trajectories made from ladder seed ``seed``'s problems: 0 moves then makes
     a partial first pour, 1 pours everything, 2 makes a partial first pour as its first action."""
-    from active.loop import derive_seed
-    from sim.problems import sample_problems
+    from active.ladder import ceiling_train_problems
 
-    probs = sample_problems(world, 3, derive_seed(seed, "ladder-ceiling-train"), world="target")
+    probs = ceiling_train_problems(world, 3, seed)
     st = [p.start[:3] for p in probs]
     full = lambda pose: np.r_[pose, 1.0, 0.0]  # noqa: E731
     s = np.array([full(st[0]), full([0.32, 0.17, 0.0]), full(st[1]), full(st[2])])
