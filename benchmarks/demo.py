@@ -19,7 +19,7 @@ from sim.world import WorldConfig
 
 SCRIPTS = {
     "under_canopy": ([0.42, 0.20], [move(0.31, 0.14), pour(1.5, 0.5)]),
-    "above_leaves": ([0.42, 0.20], [move(0.42, 0.30), move(0.27, 0.30), pour(1.3, 0.5)]),
+    "above_leaves": ([0.42, 0.20], [move(0.42, 0.30), move(0.25, 0.30), pour(1.2, 0.5)]),
     "through_leaf": ([0.42, 0.24], [move(0.15, 0.24), pour(2.0, 0.5)]),
 }
 

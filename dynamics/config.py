@@ -83,6 +83,13 @@ class DataConfig:
     action is a pour, which is rarer and more informative: the cup stays tilted and keeps its
     water) and otherwise resampled, so that stuck transitions are covered without most
     trajectories ending after one or two actions.
+
+    Focused pours (``pour_batches`` > 0): that many more batches of trajectories made for
+    the pours plans use: from a start drawn as above, a move to a lattice point in ``pour_x`` x ``pour_y``
+    (next to the target cup), a pour of the full cup with an angle in ``pour_theta`` (the steep part of its
+    outcome curve), and with ``p_second_pour`` a second, steeper pour. Random sequences put few full-cup
+    pours there (59 of 5,976 transitions in the default data), where a plan's partial pour is decided
+    (BENCHMARKS.md, session 28). With ``pour_batches`` = 0 the pour fields are not part of the data hash.
     """
 
     seed: int = 0
@@ -103,6 +110,11 @@ class DataConfig:
     p_keep_stuck: float = 0.35
     p_keep_stuck_pour: float = 1.0
     start_margin: float = 0.005
+    pour_batches: int = 24
+    pour_x: tuple[float, float] = (0.28, 0.35)
+    pour_y: tuple[float, float] = (0.10, 0.30)
+    pour_theta: tuple[float, float] = (0.9, 1.6)
+    p_second_pour: float = 0.5
     #: world YAML (None: sim's configs/world/default.yaml); its content is part of the data hash
     world: str | None = None
 
@@ -125,6 +137,10 @@ class DataConfig:
         if not float(self.start_margin) >= 0:
             raise DynamicsError(f"data.start_margin = {self.start_margin}: allowed >= 0 m")
         s("start_margin", float(self.start_margin))
+        s("pour_batches", _int("data.pour_batches", self.pour_batches, 0))
+        for k in ("pour_x", "pour_y", "pour_theta"):
+            s(k, _range(f"data.{k}", getattr(self, k)))
+        s("p_second_pour", _prob("data.p_second_pour", self.p_second_pour))
 
 
 @dataclass(frozen=True)
@@ -372,6 +388,9 @@ def data_hash(cfg: DynamicsConfig, world_cfg: Any = None) -> str:
     """
     d = _plain(cfg.data)
     d.pop("world")
+    if not d["pour_batches"]:  # no focused pours: the hash of the data before they existed
+        for k in POUR_FIELDS:
+            d.pop(k)
     world = without_goal_range(world_dict(cfg.data, world_cfg))
     world.pop("plant")
     # where the solver ran is not what the data are (CPU and GPU agree within benchmarks.check_arch's
@@ -382,6 +401,10 @@ def data_hash(cfg: DynamicsConfig, world_cfg: Any = None) -> str:
             world["sim"].pop(k)
     return _digest({"format": data_format(world), "data": d, "world": world,
                     "solver": solver_dict(cfg.data, world_cfg)})
+
+
+#: the data fields of the focused pours (:class:`DataConfig`): the random sequences' batches do not depend on them
+POUR_FIELDS = ("pour_batches", "pour_x", "pour_y", "pour_theta", "p_second_pour")
 
 
 def plant_dict(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:

@@ -241,6 +241,18 @@ class SequenceSampler:
                 prev = None
         return out
 
+    def focused_pour(self, rng: np.random.Generator, world: str, jitter: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One focused-pour sequence (start (2,), actions): a move next to the target cup (``pour_x`` x ``pour_y``,
+        put on the lattice by the executor), a pour of the full cup at an angle in ``pour_theta`` and, with
+        ``p_second_pour``, a second pour up to 0.4 rad steeper (what a plan's partial pour is followed by)."""
+        d = self.data
+        start = self.start(rng, self.obstacles(world, jitter))
+        x, y, theta = rng.uniform(*d.pour_x), rng.uniform(*d.pour_y), rng.uniform(*d.pour_theta)
+        acts = [(MOVE, x, y), (POUR, theta, rng.uniform(*self.hold))]
+        if rng.random() < d.p_second_pour:
+            acts.append((POUR, min(theta + rng.uniform(0.0, 0.4), self.theta[1]), rng.uniform(*self.hold)))
+        return start, np.array(acts, float)
+
     def sample(self, rng: np.random.Generator, world: str, jitter: np.ndarray,
                keep_all_stuck: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """One (start (2,), actions (T, 3)) pair, cut to ``max_sim_seconds``; stuck ones mostly resampled."""
@@ -268,8 +280,11 @@ class SequenceSampler:
 def generate_transitions(data: DataConfig, world: str = "source", n_batches: int | None = None,
                          seed: int | None = None, keep_all_stuck: bool = False, progress: bool = True,
                          shard_dir: str | Path | None = None, meta: dict | None = None,
-                         executor: Any = None, world_cfg: Any = None) -> Transitions:
+                         executor: Any = None, world_cfg: Any = None, pours: bool = False) -> Transitions:
     """Execute random sequences in ``world`` (batched) and return their transitions.
+
+    ``pours``: the focused-pour batches instead (:meth:`SequenceSampler.focused_pour`; ``n_batches`` defaults
+    to ``data.pour_batches``, own random streams and shard files, trajectory indices after the random ones').
 
     ``n_batches`` / ``seed`` default to ``data``'s; ``keep_all_stuck`` ignores the ``p_keep_stuck*``
     resampling (the natural distribution, for evaluation sets). Batch ``b`` draws from
@@ -285,7 +300,7 @@ def generate_transitions(data: DataConfig, world: str = "source", n_batches: int
     from task.problems import check_world, sample_problems
 
     check_world(world)
-    n_batches = data.n_batches if n_batches is None else int(n_batches)
+    n_batches = (data.pour_batches if pours else data.n_batches) if n_batches is None else int(n_batches)
     seed = data.seed if seed is None else int(seed)
     wcfg = load_world(data, world_cfg)
     sampler = SequenceSampler(data, wcfg)
@@ -296,15 +311,17 @@ def generate_transitions(data: DataConfig, world: str = "source", n_batches: int
     counts = {"trajectories": 0, "unstable": 0, "stuck": 0, "sim_seconds": 0.0, "categories": {}}
     t0 = time.perf_counter()
     world_code = 0 if world == "source" else 1
-    bar = tqdm(range(n_batches), desc=f"dynamics data ({world} world, {B} x <= {data.max_actions} actions)",
-               unit="batch", disable=not progress)
-    ident = shard_identity(data, wcfg) if shard_dir else None
+    what = "focused pours" if pours else f"{B} x <= {data.max_actions} actions"
+    bar = tqdm(range(n_batches), desc=f"dynamics data ({world} world, {what})", unit="batch", disable=not progress)
+    ident = shard_identity(data, wcfg, pours) if shard_dir else None
+    first_traj = data.n_batches * B if pours else 0
     for b in bar:
-        shard = shard_dir / f"batch{b:04d}.pt" if shard_dir else None
+        key = [seed, b, world, B, keep_all_stuck] + (["pours"] if pours else [])
+        shard = shard_dir / f"{'pours' if pours else 'batch'}{b:04d}.pt" if shard_dir else None
         if shard is not None and shard.is_file():
             try:
                 part = Transitions.load(shard)
-                if part.meta.get("shard_key") == [seed, b, world, B, keep_all_stuck] and \
+                if part.meta.get("shard_key") == key and \
                         part.meta.get("config") == ident:
                     parts.append(part)
                     _add_counts(counts, part.meta["counts"])
@@ -312,16 +329,19 @@ def generate_transitions(data: DataConfig, world: str = "source", n_batches: int
                 log.warning("regenerating shard %s: another configuration made it", shard)
             except DynamicsError as e:
                 log.warning("ignoring unreadable shard %s: %s", shard, e)
-        rng = np.random.default_rng([seed, b, world_code])
+        rng = np.random.default_rng([seed, b, world_code] + ([1] if pours else []))
         if world == "target":
             jit = np.array([p.plant_jitter for p in sample_problems(wcfg, B, int(rng.integers(2**31)), "target")])
         else:
             jit = np.zeros((B, 3))
-        starts, seqs = zip(*(sampler.sample(rng, world, jit[i], keep_all_stuck) for i in range(B)))
+        if pours:
+            starts, seqs = zip(*(sampler.focused_pour(rng, world, jit[i]) for i in range(B)))
+        else:
+            starts, seqs = zip(*(sampler.sample(rng, world, jit[i], keep_all_stuck) for i in range(B)))
         results = ex.run(world, np.array(starts), list(seqs), plant_jitter=jit if world == "target" else None)
-        part, c = _collect(results, jit, traj_offset=b * B)
+        part, c = _collect(results, jit, traj_offset=first_traj + b * B)
         c["sim_seconds"] = float(ex.last_timing.get("sim_seconds", 0.0))
-        part.meta = {"shard_key": [seed, b, world, B, keep_all_stuck], "config": ident, "counts": c}
+        part.meta = {"shard_key": key, "config": ident, "counts": c}
         if shard is not None:
             part.save(shard)
         parts.append(part)
@@ -332,19 +352,20 @@ def generate_transitions(data: DataConfig, world: str = "source", n_batches: int
 
     out = Transitions.concat(parts)
     out.meta = {**(meta or {}), "world": world, "seed": seed, "n_batches": n_batches, "batch_size": B,
-                "counts": {**counts, **out.summary()}, "wall_seconds": time.perf_counter() - t0,
+                "focused_pours": pours, "counts": {**counts, **out.summary()}, "wall_seconds": time.perf_counter() - t0,
                 "data_config": _plain_data(data), "cpu": cpu_fingerprint()}
     out.validate()
     return out
 
 
-def shard_identity(data: DataConfig, wcfg: Any) -> str:
+def shard_identity(data: DataConfig, wcfg: Any, pours: bool = False) -> str:
     """Digest of what a batch's content depends on besides its key: the generator fields (not the
-    batch count) and the world, so a shard left by another configuration is never reused."""
-    from .config import _digest, data_format, solver_dict, without_goal_range, world_dict
+    batch counts; the focused-pour fields only for a focused-pour batch) and the world, so a shard left
+    by another configuration is never reused."""
+    from .config import POUR_FIELDS, _digest, data_format, solver_dict, without_goal_range, world_dict
 
     d = _plain_data(data)
-    for k in ("world", "n_batches"):
+    for k in ("world", "n_batches", "pour_batches") + (() if pours else POUR_FIELDS):
         d.pop(k, None)
     world = without_goal_range(world_dict(data, wcfg))
     return _digest({"format": data_format(world), "data": d, "world": world,

@@ -16,6 +16,7 @@ runs (Hydra multirun) wait on a file lock instead of generating the same data tw
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import copy
 import fcntl
 import logging
@@ -229,9 +230,16 @@ def load_or_generate_dataset(cfg: DynamicsConfig | Mapping[str, Any] | None = No
 
                 install_shipped(path, dh)
             if not path.is_file():
-                gen = generator or data_mod.generate_source_dataset
-                ds = gen(c, shard_dir=shard_dir, progress=c.progress if progress is None else progress,
-                         world_cfg=world_cfg)
+                show = c.progress if progress is None else progress
+                if generator is None and c.data.pour_batches:  # the random data's own dataset + focused pours
+                    base = load_or_generate_dataset(c.replace(data=dataclasses.replace(c.data, pour_batches=0)),
+                                                    cache_root, None, progress, world_cfg, use_shipped)
+                    pours = data_mod.generate_transitions(c.data, "source", shard_dir=shard_dir, progress=show,
+                                                          world_cfg=world_cfg, pours=True)
+                    ds = Transitions.concat([base, pours], meta={**base.meta, "pours": pours.meta})
+                else:
+                    gen = generator or data_mod.generate_source_dataset
+                    ds = gen(c, shard_dir=shard_dir, progress=show, world_cfg=world_cfg)
                 if len(ds) == 0:
                     raise DynamicsError("the data generator returned no transitions (all environments unstable?); "
                                         "check the world config or change data.seed")

@@ -185,6 +185,10 @@ class PouringExecutor:
         running environments' results are the same either way (bit-identical on the CPU); False
         simulates every environment to the end of the longest trajectory (the old behaviour, kept
         for the benchmark's comparison).
+
+        ``world.plant.on_contact: stuck``: a trajectory the plant stopped gets one more step per action
+        it had left, attempted without effect (the cup stays caught, s' = s): the deviation a planner's
+        model makes by expecting those actions to work is then in the data (under "stop" it is not).
         """
         check_world(world)
         t_all = time.perf_counter()
@@ -275,6 +279,11 @@ class PouringExecutor:
             n_exec = scheds[b].executed
             steps = [Step(states[t], acts[b][t], states[t + 1], stuck=t in scheds[b].blocked)
                      for t in range(n_exec)]
+            if cfg.plant_on_contact == "stuck" and scheds[b].stuck_on == "plant" and n_exec < len(acts[b]):
+                n_left = len(acts[b]) - n_exec
+                steps += [Step(states[-1], acts[b][t], states[-1], stuck=True) for t in range(n_exec, len(acts[b]))]
+                states = np.concatenate([states, np.repeat(states[-1:], n_left, 0)])
+                n_exec = len(acts[b])
             g = None if goals is None else float(goals[b])
             reached = None if g is None else bool(goal_reached(states[-1], g, cfg.problems["tolerance"], max_spill)
                                                  and not unstable[b])

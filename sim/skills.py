@@ -8,7 +8,9 @@ environment's whole pose-versus-time schedule is computed before simulating: if 
 an obstacle (plant, target cup, tank wall), it stops at the last contact-free pose and stays there
 ("stuck"); the rest of that trajectory is not executed. With ``world.plant.on_contact: hold`` a cup
 blocked by the plant (foliage, not a rigid structure) stays at the leaf only for the rest of that
-action, and the trajectory goes on from there: the next actions, and their labels, are observed.
+action, and the trajectory goes on from there: the next actions, and their labels, are observed. With
+``stuck`` the cup stays caught for the rest of the trajectory: the schedule ends as with ``stop``, and the
+executor records each action left as attempted without effect (:meth:`sim.execute.PouringExecutor.run`).
 """
 
 from __future__ import annotations

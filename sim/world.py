@@ -45,7 +45,7 @@ class CupConfig:
 
 
 #: allowed values of ``world.plant.on_contact``
-PLANT_CONTACT = ("stop", "hold")
+PLANT_CONTACT = ("stop", "hold", "stuck")
 
 
 @dataclass
@@ -106,7 +106,9 @@ class WorldConfig:
     @property
     def plant_on_contact(self) -> str:
         """What a cup blocked by the plant does: "stop" ends the trajectory there, "hold" keeps the cup at
-        the leaf for the rest of that action and goes on with the next (see :func:`sim.skills.plan_schedule`)."""
+        the leaf for the rest of that action and goes on with the next (see :func:`sim.skills.plan_schedule`),
+        "stuck" ends it as "stop" does and records every action left as attempted without effect (s' = s; see
+        :meth:`sim.execute.PouringExecutor.run`)."""
         return self.plant.get("on_contact", "stop")
 
     # ------------------------------------------------------------------ geometry

@@ -11,7 +11,7 @@ from active.ladder import RUNGS, main, table
 def test_tiny_ladder_writes_every_rung(tmp_path, capsys):
     cache = tmp_path / "cache"
     overrides = ["experiment=tiny", "wandb.mode=disabled", "progress=false", f"dynamics.cache_root={cache}",
-                 "dynamics.progress=false", "dynamics.data.n_batches=1", "dynamics.data.batch_size=2",
+                 "dynamics.progress=false", "dynamics.data.n_batches=1", "dynamics.data.batch_size=2", "dynamics.data.pour_batches=0",
                  "dynamics.train.max_epochs=5"]
     main(["--out", str(tmp_path / "ladder"), "--slots", "2", "--thetas", "1.45", "--problems", "2",
           "--ceiling-trajectories", "5", *overrides])

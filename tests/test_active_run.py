@@ -27,7 +27,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 def tiny_overrides(cache: Path) -> list[str]:
     return ["experiment=tiny", "wandb.mode=disabled", "progress=false", f"dynamics.cache_root={cache}",
-            "dynamics.progress=false", "dynamics.data.n_batches=1", "dynamics.data.batch_size=2",
+            "dynamics.progress=false", "dynamics.data.n_batches=1", "dynamics.data.batch_size=2", "dynamics.data.pour_batches=0",
             "dynamics.train.max_epochs=5"]
 
 

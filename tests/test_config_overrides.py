@@ -182,8 +182,11 @@ def test_documented_overrides_arrive():
         settings(["experiment.plan_accept_tol=0.06"])
     with pytest.raises(ValueError, match=r"experiment.plan_accept_tol = 0.01: allowed"):
         settings(["experiment.plan_goal_tol=0.02", "experiment.plan_accept_tol=0.01"])
-    leaf = settings(["world.plant.leaves.0.center=[0.065,0.26]"])[1].plant["leaves"][0]  # README: a higher leaf
-    assert list(leaf["center"]) == [0.065, 0.26] and list(leaf["radii"]) == [0.065, 0.007]
+    leaf = settings(["world.plant.leaves.0.center=[0.045,0.26]"])[1].plant["leaves"][0]  # README: a higher leaf
+    assert list(leaf["center"]) == [0.045, 0.26] and list(leaf["radii"]) == [0.045, 0.007]
+    leaf = settings(["world.plant.leaves.0.center=[0.065,0.22]", "world.plant.leaves.0.radii=[0.065,0.007]"]
+                    )[1].plant["leaves"][0]  # README: the leaf before session 28
+    assert list(leaf["center"]) == [0.065, 0.22] and list(leaf["radii"]) == [0.065, 0.007]
     with pytest.raises(ValueError, match=r"experiment.plan_spill_limit = 0.03: allowed \[0, 0.02\]"):
         settings(["experiment.plan_spill_limit=0.03"])
     assert settings(["experiment.planner_propagation_budget=20000"])[2].propagation_budget == 20000

@@ -24,7 +24,7 @@ def no_simulator(monkeypatch):
     monkeypatch.setattr("dynamics.evaluate.generate_transitions", fake_eval_set)
 
 
-OVERRIDES = ["progress=false", "data.n_batches=1", "data.batch_size=12", "model.hidden=[16]",
+OVERRIDES = ["progress=false", "data.n_batches=1", "data.pour_batches=0", "data.batch_size=12", "model.hidden=[16]",
              "train.max_epochs=3", "eval.source_batches=1", "eval.target_batches=2"]
 
 

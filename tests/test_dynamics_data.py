@@ -57,10 +57,10 @@ def test_near_target_moves_and_pours_after_them(wcfg):
 
 
 def test_plant_clearance_separates_near_and_far(wcfg):
-    s = np.array([[0.27, 0.28, 0, 1, 0],   # pour with the lip right above the big leaf
+    s = np.array([[0.24, 0.28, 0, 1, 0],   # pour with the lip right above the big leaf
                   [0.45, 0.20, 0, 1, 0],   # move on the right, far from the plant
                   [0.47, 0.20, 0, 1, 0],   # pour far right, water lands right of the target cup
-                  [0.354, 0.28, 0, 1, 0]])  # lip 6 cm right of the leaf tip, above it: the stream reaches it
+                  [0.31, 0.28, 0, 1, 0]])  # lip 6 cm right of the leaf tip, above it: the stream reaches it
     a = np.array([[1, 1.5, 0.2], [0, 0.45, 0.30], [1, 1.0, 0.0], [1, 1.8, 0.2]])
     tr = Transitions.from_arrays(s, a, s)
     c = plant_clearance(wcfg, tr, "target")
@@ -96,3 +96,56 @@ def test_tiny_simulator_dataset_trains_and_resumes(tmp_path):
     out = model.predict_np(ds.s, ds.a)
     assert np.isfinite(out).all() and (out[:, 3:] >= 0).all() and (out[:, 3:].sum(1) <= 1 + 1e-9).all()
     assert wall < 120
+
+
+def test_focused_pours_move_next_to_the_target_cup_then_pour(wcfg):
+    data = DataConfig(p_second_pour=1.0, pour_theta=(1.1, 1.3))
+    sm = SequenceSampler(data, wcfg)
+    rng = np.random.default_rng(2)
+    for _ in range(5):
+        start, acts = sm.focused_pour(rng, "source", np.zeros(3))
+        assert acts[:, 0].tolist() == [0, 1, 1]
+        assert data.pour_x[0] <= acts[0, 1] <= data.pour_x[1] and data.pour_y[0] <= acts[0, 2] <= data.pour_y[1]
+        assert 1.1 <= acts[1, 1] <= 1.3 and acts[1, 1] <= acts[2, 1] <= acts[1, 1] + 0.4
+        assert data.start_margin <= sm.obstacles("source", np.zeros(3)).sdf(sm.boundary + start)[0].min()
+
+
+def test_focused_pours_leave_the_random_data_and_its_hash_alone():
+    """pour_batches = 0: the pour fields are in no hash (the shipped data stays valid); > 0: a new data hash, the
+    random batches' shards keep their identity (they are reused), the pour batches have their own."""
+    import dataclasses
+
+    from dynamics import DynamicsConfig, data_hash
+    from dynamics.data import shard_identity
+
+    base = DynamicsConfig().replace(data=dataclasses.replace(DynamicsConfig().data, pour_batches=0))
+    off = base.replace(data=dataclasses.replace(base.data, pour_x=(0.2, 0.3)))
+    on = base.replace(data=dataclasses.replace(base.data, pour_batches=2))
+    assert data_hash(off) == data_hash(base) != data_hash(on)
+    w = WorldConfig.load()
+    assert shard_identity(on.data, w) == shard_identity(base.data, w) != shard_identity(on.data, w, pours=True)
+    with pytest.raises(ValueError, match=r"data.pour_batches = -1: allowed 0..inf"):
+        DataConfig(pour_batches=-1)
+    with pytest.raises(ValueError, match=r"data.pour_theta = \[1.5, 1.0\]"):
+        DataConfig(pour_theta=(1.5, 1.0))
+
+
+def test_focused_pours_are_added_to_the_cached_random_data(tmp_path):
+    """load_or_generate_dataset with pour_batches: the random data's own cached dataset (not simulated again)
+    followed by the focused-pour batches, whose trajectory indices come after the random ones."""
+    import dataclasses
+
+    from dynamics import DynamicsConfig
+    from dynamics.train import load_or_generate_dataset
+
+    data = DataConfig(batch_size=2, n_batches=1, min_actions=1, max_actions=1, max_sim_seconds=4.0, seed=5,
+                      pour_batches=1, p_second_pour=0.0)
+    cfg = DynamicsConfig(data=dataclasses.replace(data, pour_batches=0), progress=False)
+    random_only = load_or_generate_dataset(cfg, tmp_path, use_shipped=False)
+    both = load_or_generate_dataset(cfg.replace(data=data), tmp_path, use_shipped=False)
+    n = len(random_only)
+    assert np.array_equal(both.s_next[:n], random_only.s_next) and np.array_equal(both.traj[:n], random_only.traj)
+    pours = both.subset(np.arange(n, len(both)))
+    assert (pours.traj >= data.n_batches * data.batch_size).all() and len(np.unique(pours.traj)) == 2
+    assert pours.a[pours.step == 0, 0].tolist() == [0, 0] and pours.a[pours.step == 1, 0].tolist() == [1, 1]
+    assert np.allclose(pours.s[pours.step == 1, 3], 1.0, atol=0.01)  # the pour starts from a full cup

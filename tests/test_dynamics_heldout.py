@@ -9,7 +9,7 @@ import pytest
 from benchmarks import dynamics_heldout
 from tests.doubles.synthetic import synthetic_generator
 
-TINY = "data.n_batches=1,data.batch_size=16,data.max_actions=4,model.hidden=[8],train.max_epochs=2,progress=false"
+TINY = "data.n_batches=1,data.pour_batches=0,data.batch_size=16,data.max_actions=4,model.hidden=[8],train.max_epochs=2,progress=false"
 
 
 def test_variants_are_scored_on_held_out_batches(tmp_path, monkeypatch, capsys):

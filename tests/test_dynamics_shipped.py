@@ -31,7 +31,8 @@ def test_default_config_has_its_shipped_dataset():
                               f"config changed; refresh it with `python -m dynamics.shipped`")
     ds = Transitions.load(path, expected_hash=dh)
     assert ds.meta["world"] == "source" and ds.meta["n_batches"] == c.data.n_batches
-    assert len(np.unique(ds.traj)) == c.data.n_batches * c.data.batch_size
+    assert len(np.unique(ds.traj)) == (c.data.n_batches + c.data.pour_batches) * c.data.batch_size
+    assert ds.meta["pours"]["n_batches"] == c.data.pour_batches  # the focused pours follow the random batches
 
 
 def test_first_shard_regenerates_bit_for_bit():
@@ -56,6 +57,24 @@ def test_first_shard_regenerates_bit_for_bit():
     if made_on != here:
         pytest.skip(f"simulated states are compared bit for bit only on a CPU (and numpy, Taichi) like the one "
                     f"that made the shipped file ({made_on or 'not recorded'}); this one: {here}")
+    for k in ("s", "s_next"):
+        np.testing.assert_array_equal(getattr(again, k), getattr(ds, k)[rows], err_msg=k)
+
+
+def test_first_focused_pour_shard_regenerates_bit_for_bit():
+    """The same for the first batch of focused pours (``data.pour_batches``), which follow the random batches."""
+    from sim.backend import cpu_fingerprint
+
+    c, dh = _default()
+    ds = Transitions.load(shipped.find_shipped(dh), expected_hash=dh)
+    again = generate_transitions(c.data, "source", n_batches=1, progress=False, pours=True)
+    first = c.data.n_batches * c.data.batch_size
+    rows = (ds.traj >= first) & (ds.traj < first + c.data.batch_size)
+    assert rows.sum() == len(again) > 0
+    for k in ("a", "traj", "step", "stuck"):
+        np.testing.assert_array_equal(getattr(again, k), getattr(ds, k)[rows], err_msg=k)
+    if ds.meta["pours"].get("cpu") != cpu_fingerprint():  # the focused pours may come from another CPU than the rest
+        pytest.skip("simulated states are compared bit for bit only on a CPU like the one that made the shipped file")
     for k in ("s", "s_next"):
         np.testing.assert_array_equal(getattr(again, k), getattr(ds, k)[rows], err_msg=k)
 

@@ -86,7 +86,7 @@ def counted(monkeypatch):
 
 
 def tiny(**over) -> dict:
-    d = {"progress": False, "data": {"n_batches": 1, "batch_size": 16, "max_actions": 4},
+    d = {"progress": False, "data": {"n_batches": 1, "batch_size": 16, "max_actions": 4, "pour_batches": 0},
          "model": {"hidden": [16], "ensemble": 1}, "train": {"max_epochs": 3, "patience": 3}}
     for k, v in over.items():
         d[k] = {**d.get(k, {}), **v}

@@ -354,7 +354,7 @@ def test_dynamics_cache_finishes_after_a_kill_and_removes_orphans(tmp_path, monk
         calls.append("fit")
         return real_fit(*a, **k)
 
-    cfg = {"progress": False, "data": {"n_batches": 1, "batch_size": 8, "max_actions": 4},
+    cfg = {"progress": False, "data": {"n_batches": 1, "batch_size": 8, "max_actions": 4, "pour_batches": 0},
            "model": {"hidden": [8], "ensemble": 1}, "train": {"max_epochs": 2, "patience": 2}}
     monkeypatch.setattr("dynamics.data.generate_source_dataset", gen)
     monkeypatch.setattr(train_mod, "fit", counting_fit)

@@ -11,7 +11,7 @@ from sim.world import WorldConfig, goal_reached, spill, state_distance
 SCRIPTS = [
     ([0.42, 0.20], [pour(0.0, 0.5)]),  # 0: no tilt
     ([0.42, 0.20], [move(0.31, 0.14), pour(2.2, 1.0)]),  # 1: full tilt over the target, below the canopy
-    ([0.42, 0.20], [move(0.42, 0.30), move(0.27, 0.30), pour(1.3, 0.5)]),  # 2: from above the leaves
+    ([0.42, 0.20], [move(0.42, 0.30), move(0.25, 0.30), pour(1.2, 0.5)]),  # 2: above the leaves
     ([0.42, 0.24], [move(0.15, 0.24), pour(2.0, 0.5)]),  # 3: straight through a leaf
 ]
 
@@ -187,8 +187,33 @@ def test_plant_on_contact_hold_blocks_only_that_action(cfg):
     rigid = plan_schedule(hold, np.array([0.42, 0.20, 0.0]), np.array([move(0.22, 0.07), pour(0.5, 0.2)]), obst,
                           cup_boundary(cfg))
     assert (rigid.executed, rigid.blocked, rigid.stuck_on) == (1, [0], "target")  # the target cup still ends it
-    with pytest.raises(ValueError, match=r"world.plant.on_contact = 'bend': allowed stop, hold"):
+    with pytest.raises(ValueError, match=r"world.plant.on_contact = 'bend': allowed stop, hold, stuck"):
         WorldConfig.from_mapping({**dataclasses.asdict(cfg), "plant": {**cfg.plant, "on_contact": "bend"}})
+
+
+def test_plant_on_contact_stuck_records_the_actions_left_without_effect(cfg, runs):
+    """``plant.on_contact: stuck``: the same simulation as "stop" (final state and category bit for bit), plus one
+    step per action the plant kept the cup from, with s' = s; a trajectory the plant did not stop is unchanged."""
+    import dataclasses
+
+    ex = PouringExecutor(dataclasses.replace(cfg, plant={**cfg.plant, "on_contact": "stuck"}))
+    try:
+        got = ex.run("target", np.array([SCRIPTS[3][0], SCRIPTS[1][0]]), [SCRIPTS[3][1], SCRIPTS[1][1]],
+                     goals=[0.5, 0.5], slots=[3, 1])
+    finally:
+        ex.close()
+    stop_through_leaf, stop_clear = runs["target"][3], runs["target"][1]
+    through, clear = got
+    assert stop_through_leaf.category == through.category == "stuck_in_plant"
+    assert (len(stop_through_leaf.steps), len(through.steps)) == (1, 2)
+    np.testing.assert_array_equal(through.states[:2], stop_through_leaf.states)
+    np.testing.assert_array_equal(through.steps[1].s, stop_through_leaf.states[-1])
+    np.testing.assert_array_equal(through.steps[1].s_next, stop_through_leaf.states[-1])
+    np.testing.assert_array_equal(through.steps[1].a, SCRIPTS[3][1][1])
+    assert through.steps[1].stuck and len(through.actions) == 2
+    assert through.goal_reached == stop_through_leaf.goal_reached
+    np.testing.assert_array_equal(clear.states, stop_clear.states)
+    assert len(clear.steps) == len(stop_clear.steps) and clear.category == stop_clear.category
 
 
 @pytest.mark.parametrize("kwargs,match", [
