@@ -279,10 +279,9 @@ class PouringExecutor:
             n_exec = scheds[b].executed
             steps = [Step(states[t], acts[b][t], states[t + 1], stuck=t in scheds[b].blocked)
                      for t in range(n_exec)]
-            if cfg.plant_on_contact == "stuck" and scheds[b].stuck_on == "plant" and n_exec < len(acts[b]):
-                n_left = len(acts[b]) - n_exec
-                steps += [Step(states[-1], acts[b][t], states[-1], stuck=True) for t in range(n_exec, len(acts[b]))]
-                states = np.concatenate([states, np.repeat(states[-1:], n_left, 0)])
+            if cfg.plant_on_contact == "stuck" and scheds[b].stuck_on == "plant":  # the rest: tried, no effect
+                steps += [Step(states[-1], a, states[-1], stuck=True) for a in acts[b][n_exec:]]
+                states = np.concatenate([states, np.repeat(states[-1:], len(acts[b]) - n_exec, 0)])
                 n_exec = len(acts[b])
             g = None if goals is None else float(goals[b])
             reached = None if g is None else bool(goal_reached(states[-1], g, cfg.problems["tolerance"], max_spill)

@@ -4,6 +4,9 @@ target cup, then tilted onto the steep part of its outcome curve) make the dynam
     PYTHONPATH=. python benchmarks/scratch_s28/focus_pours.py gen  OUT.pt --batches 16 [--seed 1]
     PYTHONPATH=. python benchmarks/scratch_s28/focus_pours.py train OUT_DIR FOCUS.pt [FOCUS2.pt ...]
     PYTHONPATH=. python benchmarks/scratch_s28/focus_pours.py eval OUT.json MODEL_DIR|default ... --data HELDOUT.pt
+    PYTHONPATH=. python benchmarks/scratch_s28/focus_pours.py count DATASET.pt
+
+count: full-cup pours at tilt 1.0-1.5 from x 0.29-0.37 m, y < 0.22 m in a dataset (the old default data: 59 of 5,976).
 
 gen: trajectories in the source world: start in the problems' start region, move to (x, y) on the lattice in
 the focus box, pour (theta, hold), and with probability 0.5 a second, steeper pour. train: the default
@@ -63,7 +66,6 @@ def gen(out: Path, batches: int, seed: int, batch_size: int = 32) -> None:
 
 
 def train(out_dir: Path, focus_files: list[Path], members: int = 3) -> None:
-    import dynamics
     from active.run import compose_config
     from dynamics.config import DynamicsConfig, ensemble_member
     from dynamics.data import Transitions
@@ -83,7 +85,6 @@ def train(out_dir: Path, focus_files: list[Path], members: int = 3) -> None:
         model.save(out_dir / f"member{k}.pt")
         print(f"member {k}: {model.info['training']['epochs_run']} epochs, val {model.info['training']['best_val_loss']:.4f}, "
               f"{model.info['training']['wall_seconds']:.0f} s", flush=True)
-    del dynamics
 
 
 def load_model(spec: str):
@@ -128,6 +129,16 @@ def evaluate(out: Path, specs: list[str], data: Path) -> None:
     out.write_text(json.dumps({"data": str(data), "models": rows}, indent=1))
 
 
+def count(path: Path) -> None:
+    from dynamics.data import Transitions
+
+    ds = Transitions.load(path)
+    s, a = ds.s, ds.a
+    m = (a[:, 0] == 1) & (s[:, 3] > 0.97) & (a[:, 1] >= 1.0) & (a[:, 1] <= 1.5) & (s[:, 0] >= 0.29) & (s[:, 0] <= 0.37) \
+        & (s[:, 1] < 0.22)
+    print(f"{m.sum()} of {len(ds)} transitions: full-cup pours at tilt 1.0-1.5 from x 0.29-0.37 m, y < 0.22 m")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -142,9 +153,12 @@ def main(argv=None) -> int:
     e.add_argument("out", type=Path)
     e.add_argument("models", nargs="+")
     e.add_argument("--data", type=Path, required=True)
+    sub.add_parser("count").add_argument("dataset", type=Path)
     a = ap.parse_args(argv)
     if a.cmd == "gen":
         gen(a.out, a.batches, a.seed)
+    elif a.cmd == "count":
+        count(a.dataset)
     elif a.cmd == "train":
         train(a.out_dir, a.focus)
     else:
