@@ -237,11 +237,12 @@ def test_problems_are_the_worlds_and_bit_identical_to_before():
     from task import sample_problems
 
     assert via_sim is sample_problems
-    cfg = compose_config(["world.skills.lattice=0"])  # continuous positions: the draws themselves
+    old_goals = "world.problems.goal=[0.3,0.8]"  # the default goal range of the pinned draws (until session 29)
+    cfg = compose_config(["world.skills.lattice=0", old_goals])  # continuous positions: the draws themselves
     _, world, _, _ = run_settings(cfg)
     a, b = sample_problems(world, 2, 123), sample_problems(cfg["world"], 2, np.random.default_rng(123))
     # the default world (session 13) puts the same draws on its 1 cm lattice
-    on = sample_problems(run_settings(compose_config([]))[1], 2, 123)
+    on = sample_problems(run_settings(compose_config([old_goals]))[1], 2, 123)
     for p, q in zip(a, on):
         np.testing.assert_allclose(q.start[:2], np.round(p.start[:2] / 0.01) * 0.01, rtol=0, atol=1e-12)
         np.testing.assert_array_equal(p.plant_jitter, q.plant_jitter)
