@@ -226,10 +226,9 @@ def ceiling(world, dyn, pool, exp, executor, make_mde, n_train: int, n: int, see
     import torch
 
     from planner import features
-    from sim.problems import sample_problems
     from sim.skills import MOVE, POUR
 
-    from .loop import derive_seed, label_transitions
+    from .loop import label_transitions
 
     if reuse:
         if data_path is None or not Path(data_path).exists():
@@ -270,19 +269,29 @@ def ceiling(world, dyn, pool, exp, executor, make_mde, n_train: int, n: int, see
                                **_admission(mu[m], sd[m], y[m], exp, "in_sample")}
             if cv is not None:
                 per_skill[name].update(_admission(cv[0].numpy()[m], cv[1].numpy()[m], y[m], exp, "heldout"))
-    test = sample_problems(world, n, derive_seed(seed, "ladder-ceiling-test"), world="target")
-    t0 = time.perf_counter()
-    tplans = plan_all(pool, mde, test, exp, seed, "ceiling-test")
-    t_plan = time.perf_counter() - t0
-    res = execute_plans(executor, "target", test, tplans)
-    done = [r for r in res if r is not None]
     return {"train_trajectories": n_train, "train_plans_found": int(data.get("train_plans_found", -1)),
             "train_transitions": int(len(y)), "label_mean": float(np.mean(y)) if len(y) else None,
             "label_below_d_max": float(np.mean(np.asarray(y) < exp.d_max)) if len(y) else None,
-            "precondition_on_train": per_skill,
-            "n": n, "found": len(done) / n, "success": sum(bool(r.goal_reached) for r in done) / n,
-            **outcomes(world, done), "fit_seconds": t_fit, "cv_seconds": t_cv, "plan_seconds": t_plan,
-            "problems": per_problem(test, res)}
+            "precondition_on_train": per_skill, **ceiling_test(world, pool, mde, exp, executor, n, seed),
+            "fit_seconds": t_fit, "cv_seconds": t_cv}
+
+
+def ceiling_test(world, pool, mde, exp, executor, n: int, seed: int) -> dict:
+    """Plan ceiling seed ``seed``'s n target-world test problems with ``mde`` under the test precondition and
+    execute the plans found: found, success, outcomes, planning time and per-problem records. Any MDE can be put
+    on the same problems this way (a run's own, one fitted on pooled data)."""
+    from sim.problems import sample_problems
+
+    from .loop import derive_seed
+
+    test = sample_problems(world, n, derive_seed(seed, "ladder-ceiling-test"), world="target")
+    t0 = time.perf_counter()
+    plans = plan_all(pool, mde, test, exp, seed, "ceiling-test")
+    t_plan = time.perf_counter() - t0
+    res = execute_plans(executor, "target", test, plans)
+    done = [r for r in res if r is not None]
+    return {"n": n, "found": len(done) / n, "success": sum(bool(r.goal_reached) for r in done) / n,
+            **outcomes(world, done), "plan_seconds": t_plan, "problems": per_problem(test, res)}
 
 
 def _admission(mu: np.ndarray, sd: np.ndarray, y: np.ndarray, exp, prefix: str) -> dict:

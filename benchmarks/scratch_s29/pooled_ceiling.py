@@ -22,13 +22,13 @@ from hydra.utils import instantiate
 from mde import load as mde_load
 
 from active.experiment import ExperimentConfig
-from active.ladder import execute_plans, outcomes, plan_all
-from active.loop import build_planner_config, derive_seed, planner_workers, planning_dynamics
+from active.ladder import ceiling_test
+from active.loop import build_planner_config, planner_workers, planning_dynamics
 from active.run import compose_config
 from planner.pool import PlanPool
 from sim.execute import PouringExecutor
-from sim.problems import sample_problems
 from sim.world import WorldConfig
+
 
 def main() -> None:
     out, files = sys.argv[1], sys.argv[2:]
@@ -38,7 +38,7 @@ def main() -> None:
     t0 = time.perf_counter()
     if len(files) == 1 and "mde_iter" in files[0]:
         mde = mde_load(files[0])
-        y = mde._y if hasattr(mde, "_y") else []
+        y = mde.train_y
     else:
         X = torch.cat([torch.load(f, weights_only=False)["X"] for f in files])
         y = torch.cat([torch.load(f, weights_only=False)["y"] for f in files])
@@ -51,12 +51,8 @@ def main() -> None:
     with PlanPool(dyn, build_planner_config(world, cfg["planner"], exp), planner_workers(cfg["planner"]),
                   preload=[type(mde).__module__]) as pool:
         for seed in (0, 1, 2):
-            test = sample_problems(world, 30, derive_seed(seed, "ladder-ceiling-test"), world="target")
-            plans = plan_all(pool, mde, test, exp, seed, "ceiling-test")
-            res = execute_plans(executor, "target", test, plans)
-            done = [r for r in res if r is not None]
-            rows.append({"seed": seed, "found": len(done) / 30, "success": sum(bool(r.goal_reached) for r in done) / 30,
-                         **outcomes(world, done)})
+            r = ceiling_test(world, pool, mde, exp, executor, 30, seed)
+            rows.append({"seed": seed, **{k: v for k, v in r.items() if k not in ("problems", "plan_seconds")}})
             print(rows[-1], flush=True)
     executor.close()
     res = {"files": files, "transitions": len(y), "fit_seconds": t_fit, "per_seed": rows,
