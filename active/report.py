@@ -14,6 +14,9 @@ directories and writes:
   reference method's (``--reference``, default ``random_plan`` when present, otherwise every pair),
   paired over the seeds both have, since a seed fixes the train and test problems for every method;
   ``paired_seeds.csv`` holds the per-seed differences;
+* where the runs wrote ``model_only.csv`` (:mod:`active.baseline`: the model alone, no MDE, on each seed's
+  test problems): its success and plan-found rates as dotted lines, and ``paired_model_only.csv`` (a third
+  table in ``summary.md``): each method's AUC minus the model alone's rate, paired over seeds;
 * with ``--ceiling outputs/ladder/ladder.json``: the ceiling of ``python -m active.ladder`` (an MDE
   fitted on a large target-world dataset, the best any data collection can hope for) as a dashed line
   on the test-success and plan-found panels and as a line under the summary table.
@@ -37,6 +40,8 @@ import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
 import safeio  # noqa: E402
+from .baseline import FILE as MODEL_ONLY_FILE  # noqa: E402
+from .baseline import rates as model_only_rates  # noqa: E402
 from .io import read_csv, write_csv  # noqa: E402
 
 CATEGORY_ORDER = ("successful_pour", "unsuccessful_pour", "stuck_in_plant", "other")
@@ -44,6 +49,7 @@ CATEGORY_COLOURS = {"successful_pour": "#2c7fb8", "unsuccessful_pour": "#f03b20"
                     "other": "#bdbdbd"}
 DEFAULT_REFERENCE = "random_plan"
 CEILING_PANELS = {"test_success": "success", "test_plan_found": "found"}  # panel -> key of the ceiling entry
+MODEL_ONLY = "model alone (no MDE)"  # the reference name of the model-only rows in paired tables
 
 
 def mean_ci(values: Sequence[float], level: float = 0.95) -> tuple[float, float]:
@@ -80,10 +86,13 @@ def _curves(rows: list[dict], key: str) -> dict[str, dict[int, list[float]]]:
     return out
 
 
-def plot_learning_curves(rows: list[dict], path: Path,
-                         ceiling: Mapping[str, Any] | None = None) -> dict[str, tuple[float, str]]:
+def plot_learning_curves(rows: list[dict], path: Path, ceiling: Mapping[str, Any] | None = None,
+                         model_only: Mapping[str, tuple[float, float]] | None = None) -> dict[str, tuple[float, str]]:
     """Fig. 5; with ``ceiling`` (see :func:`load_ceiling`) a dashed line at the ceiling's success and
-    plan-found rate, so a reader sees how far each method is from what the MDE can reach at all.
+    plan-found rate, so a reader sees how far each method is from what the MDE can reach at all; with
+    ``model_only`` (panel -> (mean, CI half-width) over seeds, :func:`model_only_summary`) a dotted line
+    at the model alone's rates on the same test problems: below it, the precondition costs more good
+    plans than it saves.
 
     Returns panel -> (y, label) of the ceiling lines as drawn (read back from the axes)."""
     panels = [("test_success", "test success rate"), ("test_plan_found", "test plan found rate"),
@@ -104,6 +113,11 @@ def plot_learning_curves(rows: list[dict], path: Path,
             line = ax.axhline(float(ceiling[CEILING_PANELS[key]]), color="k", ls="--", lw=1.0,
                               label=ceiling_label(ceiling))
             drawn[key] = (float(line.get_ydata()[0]), str(line.get_label()))
+        if model_only and key in model_only:
+            mean, half = model_only[key]
+            line = ax.axhline(mean, color="0.35", ls=":", lw=1.5, label=f"{MODEL_ONLY} ± 95% CI")
+            ax.axhspan(max(mean - half, 0.0), min(mean + half, 1.0), color="0.5", alpha=0.08)
+            drawn[f"model_only:{key}"] = (float(line.get_ydata()[0]), str(line.get_label()))
         ax.set_xlabel("iteration")
         ax.set_title(title)
         ax.set_ylim(-0.02, 1.02)
@@ -111,7 +125,8 @@ def plot_learning_curves(rows: list[dict], path: Path,
     axes[0].set_ylabel("rate (mean, 95% CI over seeds)")
     # the first panel (test success) has every method and the ceiling: one legend for all panels
     # beside the last panel, since a ceiling line often runs through the upper left corner
-    legend_at = {"loc": "upper left", "bbox_to_anchor": (1.02, 1)} if ceiling is not None else {"loc": "upper left"}
+    beside = ceiling is not None or bool(model_only)
+    legend_at = {"loc": "upper left", "bbox_to_anchor": (1.02, 1)} if beside else {"loc": "upper left"}
     axes[-1].legend(*axes[0].get_legend_handles_labels(), fontsize=8, **legend_at)
     fig.tight_layout()
     safeio.save_figure(fig, path)
@@ -290,6 +305,30 @@ def paired_table(rows: list[dict]) -> list[str]:
     return lines
 
 
+def model_only_per_seed(rows: list[dict]) -> dict[str, tuple[float, float]]:
+    """seed -> (success, found) of the model alone on that seed's test problems (``model_only.csv`` rows)."""
+    by_seed: dict[str, list[dict]] = defaultdict(list)
+    for r in rows:
+        by_seed[str(r["seed"])].append(r)
+    return {s: model_only_rates(rs) for s, rs in by_seed.items()}
+
+
+def model_only_summary(per_seed: Mapping[str, tuple[float, float]]) -> dict[str, tuple[float, float]]:
+    """panel -> (mean, 95% CI half-width) over seeds of the model alone's success and plan-found rates."""
+    return {"test_success": mean_ci([v[0] for v in per_seed.values()]),
+            "test_plan_found": mean_ci([v[1] for v in per_seed.values()])}
+
+
+def model_only_rows(results: list[dict], per_seed: Mapping[str, tuple[float, float]]) -> list[dict]:
+    """The model alone as a flat learning curve of each seed (its rates at every iteration a method of that
+    seed has), so that :func:`paired` compares each method's AUC with it over the same seeds."""
+    its: dict[str, set[int]] = defaultdict(set)
+    for r in results:
+        its[str(r["seed"])].add(int(r["iteration"]))
+    return [{"method": MODEL_ONLY, "seed": s, "iteration": i, "test_success": per_seed[s][0],
+             "test_plan_found": per_seed[s][1]} for s in per_seed for i in sorted(its.get(s, ()))]
+
+
 def load_ceiling(path: Path) -> dict:
     """The ``ceiling`` entry of a ``ladder.json`` (``python -m active.ladder``), checked, so that a wrong
     file fails here with its name rather than as a missing line in a figure."""
@@ -364,7 +403,9 @@ def report(dirs: Sequence[Path], out: Path, reference: str | None = None,
     elif ceiling is not None:
         ceiling = check_ceiling(ceiling)
     out.mkdir(parents=True, exist_ok=True)
-    ceiling_lines = plot_learning_curves(results, out / "learning_curves.png", ceiling)
+    alone = model_only_per_seed(collect(dirs, MODEL_ONLY_FILE))
+    alone_summary = model_only_summary(alone) if alone else None
+    ceiling_lines = plot_learning_curves(results, out / "learning_curves.png", ceiling, alone_summary)
     summary = summarise(results)
     write_csv(out / "summary.csv", summary)
     pair_rows, pair_seeds = paired(results, reference)
@@ -381,9 +422,19 @@ def report(dirs: Sequence[Path], out: Path, reference: str | None = None,
     if ceiling is not None:
         lines += ["", ceiling_line(ceiling, ceiling_src)]
     lines += ["", *paired_table(pair_rows)]
+    alone_pairs: list[dict] = []
+    if alone:
+        (s, sh), (f, fh) = alone_summary["test_success"], alone_summary["test_plan_found"]
+        alone_pairs, alone_seeds = paired(results + model_only_rows(results, alone), MODEL_ONLY)
+        write_csv(out / "paired_model_only.csv", alone_pairs, fields=PAIRED_FIELDS)
+        write_csv(out / "paired_model_only_seeds.csv", alone_seeds, fields=PAIRED_SEED_FIELDS)
+        lines += ["", f"The {MODEL_ONLY}, the same test problems, planner and budget, {len(alone)} seed(s): "
+                      f"test success {s:.3f} ± {sh:.3f}, plan found {f:.3f} ± {fh:.3f}. Each method against it:",
+                  "", *paired_table(alone_pairs)[:-2]]
     safeio.write_text(out / "summary.md", "\n".join(lines) + "\n")
     made = {"learning_curves": str(out / "learning_curves.png"), "summary": summary, "table": "\n".join(lines),
-            "paired": pair_rows, "paired_seeds": pair_seeds, "ceiling": ceiling, "ceiling_lines": ceiling_lines}
+            "paired": pair_rows, "paired_seeds": pair_seeds, "ceiling": ceiling, "ceiling_lines": ceiling_lines,
+            "model_only": alone_summary, "paired_model_only": alone_pairs}
     cats = collect(dirs, "categories.csv")
     if cats:
         made["trajectory_types"] = plot_trajectory_types(cats, out / "trajectory_types.png")

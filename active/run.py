@@ -7,7 +7,8 @@
 
 Writes, under the run directory (``outputs/<experiment>/<method>/seed<seed>`` by default; running the
 same command again resumes it): the resolved config, per method ``results.csv``, ``categories.csv``,
-``calibration.csv``, ``dataset.pt``, MDE checkpoints and ``state.pt``, and the figures of
+``calibration.csv``, ``dataset.pt``, MDE checkpoints and ``state.pt``, per seed ``model_only.csv``
+(the model alone on the test problems, :mod:`active.baseline`), and the figures of
 ``active.report`` in ``report/``. With ``seeds=[...]`` every seed gets such a directory,
 ``seed<s>/``, and ``report/`` covers them all. ``run.lock`` names the run writing the directory (a second run
 into it is refused; a killed one's lock is taken over).
@@ -59,10 +60,11 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     from sim.execute import PouringExecutor
     from task.problems import sample_problems
 
+    from . import baseline
     from .io import write_json
     from .lockstep import run_lockstep
-    from .loop import Context, MethodRun, acquisition_factory, check_method_acquisition, derive_seed, make_calibration_set
-    from .loop import planning_dynamics
+    from .loop import Context, MethodRun, acquisition_factory, check_method_acquisition, config_digest, derive_seed
+    from .loop import make_calibration_set, planning_dynamics
     from .methods import build_method
     from .preflight import check_dynamics, check_writable
     from .report import report
@@ -119,6 +121,15 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
                     exp.random_actions_length, s), seed_cfgs[s])
         # planner worker processes (spawned on first use, shared by all methods; results do not depend on them)
         with PlanPool(dyn, planner_cfg, workers, preload=[mde_module]) as pool:
+            # the model alone on each seed's test problems (once per seed): the line every method has to beat
+            refs = {s: baseline.load(seed_dirs[s] / baseline.FILE, accepted[s], exp.test_problems) for s in seeds}
+            missing = {s: test_problems[s] for s in seeds if refs[s] is None}
+            if missing:
+                log.info("the model alone (no MDE) on the test problems of seed(s) %s", sorted(missing))
+                pool.start()
+                for s, rows in baseline.measure(pool, executor, missing, exp.d_max).items():
+                    baseline.save(seed_dirs[s] / baseline.FILE, rows, config_digest(seed_cfgs[s]))
+
             def start(s: int, method: str) -> MethodRun:
                 ctx = Context(cfg=seed_cfgs[s], exp=exp, world=world, planner_cfg=planner_cfg, dynamics=dyn,
                               executor=executor, test_problems=test_problems[s], calibration=calibrations[s],

@@ -162,3 +162,43 @@ def test_ladder_without_ceiling_is_refused(tmp_path):
     bad = _ladder(tmp_path / "bad.json", ceiling={"train_trajectories": 128, "success": 0.7})
     with pytest.raises(ValueError, match=r"bad\.json: the 'ceiling' entry has no 'found'"):
         load_ceiling(bad)
+
+
+def _write_model_only(d, seed, reached, found):
+    """A seed's model_only.csv (active.baseline): one row per test problem."""
+    d.mkdir(parents=True, exist_ok=True)
+    write_csv(d / "model_only.csv", [{"seed": seed, "problem": k, "goal": 0.4, "found": f, "goal_reached": r,
+                                      "category": "", "final_spill": "", "digest": "x"}
+                                     for k, (r, f) in enumerate(zip(reached, found))])
+
+
+def test_model_alone_is_a_line_and_a_paired_reference(tmp_path):
+    """model_only.csv beside the runs: its success and found rates, mean over seeds, as dotted lines; each
+    method's AUC minus the model alone's rate, paired over the seeds that have both."""
+    _write_run(tmp_path / "s0" / "ab", "active_balanced", 0, [0.2, 0.6])   # AUC 0.4
+    _write_run(tmp_path / "s1" / "ab", "active_balanced", 1, [0.4, 0.8])   # AUC 0.6
+    _write_run(tmp_path / "s0" / "rp", "random_plan", 0, [0.0, 0.2])       # AUC 0.1
+    _write_model_only(tmp_path / "s0", 0, [True, False, False, False], [True, True, False, False])  # 0.25 / 0.5
+    _write_model_only(tmp_path / "s1", 1, [True, True, False, False], [True, True, True, True])     # 0.5 / 1.0
+    made = report([tmp_path], tmp_path / "rep")
+    label = "model alone (no MDE) ± 95% CI"
+    assert made["ceiling_lines"] == {"model_only:test_success": (pytest.approx(0.375), label),
+                                     "model_only:test_plan_found": (pytest.approx(0.75), label)}
+    pairs = {r["method"]: r for r in made["paired_model_only"]}
+    assert pairs["active_balanced"]["paired_seeds"] == 2
+    assert pairs["active_balanced"]["diff_auc_success"] == pytest.approx(((0.4 - 0.25) + (0.6 - 0.5)) / 2)
+    assert pairs["random_plan"]["paired_seeds"] == 1
+    assert pairs["random_plan"]["diff_auc_success"] == pytest.approx(0.1 - 0.25)
+    assert read_csv(tmp_path / "rep" / "paired_model_only.csv")[0]["reference"] == "model alone (no MDE)"
+    md = (tmp_path / "rep" / "summary.md").read_text()
+    assert "model alone (no MDE), the same test problems, planner and budget, 2 seed(s): test success 0.375" in md
+    assert "| active_balanced − model alone (no MDE) | 2 | +0.125" in md
+    # the usual comparison is unchanged by the reference
+    assert {(r["method"], r["reference"]) for r in made["paired"]} == {("active_balanced", "random_plan")}
+
+
+def test_no_model_only_file_no_line(tmp_path):
+    _write_run(tmp_path / "a", "active_balanced", 0, [0.2, 0.6])
+    made = report([tmp_path / "a"], tmp_path / "rep")
+    assert made["model_only"] is None and made["paired_model_only"] == []
+    assert not (tmp_path / "rep" / "paired_model_only.csv").exists()

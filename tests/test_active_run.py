@@ -16,7 +16,7 @@ import torch
 
 import safeio
 from active.experiment import ExperimentConfig
-from active.io import RunFileError, read_csv
+from active.io import RunFileError, read_csv, write_csv
 from active.loop import TIMING_FIELDS, config_digest
 from active.run import compose_config, run_experiment
 from active.rundir import legacy_config_digest
@@ -65,6 +65,13 @@ def test_end_to_end_tiny_run_writes_everything(straight_run):
         assert (out / "report" / fig).stat().st_size > 0
     assert {s["method"] for s in made["summary"]} == {"active_balanced", "random_actions"}
     assert (out / "config.json").exists()
+    # the model alone on the same test problems, once per seed, tagged with the config that made it
+    alone = read_csv(out / "model_only.csv")
+    cfg = json.loads((out / "config.json").read_text())
+    assert [int(r["problem"]) for r in alone] == list(range(int(cfg["experiment"]["test_problems"])))
+    assert {r["digest"] for r in alone} == {config_digest(cfg)}
+    assert all(r["found"] == "True" or r["goal_reached"] == "False" for r in alone)  # success needs a plan
+    assert made["model_only"] is not None and (out / "report" / "paired_model_only.csv").exists()
 
 
 @pytest.fixture(scope="module")
@@ -158,6 +165,7 @@ def test_resume_after_kill_gives_identical_results(cache, straight_run, tmp_path
         assert read_csv(out / method / "categories.csv") == read_csv(straight / method / "categories.csv")
         a, b = torch.load(out / method / "dataset.pt"), torch.load(straight / method / "dataset.pt")
         assert torch.equal(a["X"], b["X"]) and torch.equal(a["y"], b["y"])
+    assert read_csv(out / "model_only.csv") == read_csv(straight / "model_only.csv")
 
 
 def _same_run(a: Path, b: Path) -> None:
@@ -344,6 +352,31 @@ def test_moved_cache_and_leftovers_do_not_stop_a_finished_run(cache, straight_ru
     for method in ("active_balanced", "random_actions"):
         assert read_csv(out / method / "results.csv") == read_csv(straight_run[0] / method / "results.csv")
     assert json.loads((out / "config.json").read_text())["dynamics"]["cache_root"] == str(moved)
+
+
+def test_model_alone_is_measured_once_and_rebuilt_for_another_config(cache, straight_run, tmp_path, monkeypatch):
+    """A finished run started again reuses its model_only.csv; one tagged by another config is rebuilt
+    (with the same rows: the reference is determined by the config), and no method's results change."""
+    import active.baseline
+
+    out = _copy_run(straight_run[0], tmp_path / "run")
+    cfg = compose_config(tiny_overrides(cache))
+    real, calls = active.baseline.measure, []
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(active.baseline, "measure", counted)
+    run_experiment(cfg, out)
+    assert calls == []
+    rows = read_csv(out / "model_only.csv")
+    write_csv(out / "model_only.csv", [{**r, "digest": "0123456789abcdef"} for r in rows])
+    run_experiment(cfg, out)
+    assert calls == [1]
+    assert read_csv(out / "model_only.csv") == rows
+    for method in ("active_balanced", "random_actions"):
+        assert read_csv(out / method / "results.csv") == read_csv(straight_run[0] / method / "results.csv")
 
 
 @pytest.mark.parametrize("name,damage,match", [
