@@ -306,10 +306,12 @@ def paired_table(rows: list[dict]) -> list[str]:
 
 
 def model_only_per_seed(rows: list[dict]) -> dict[str, tuple[float, float]]:
-    """seed -> (success, found) of the model alone on that seed's test problems (``model_only.csv`` rows)."""
+    """seed -> (success, found) of the model alone on that seed's test problems (``model_only.csv`` rows; a
+    problem found in several files, e.g. one per job of a per-method sweep, counts once: the last row wins)."""
+    latest = {(str(r["seed"]), r["problem"]): r for r in rows}
     by_seed: dict[str, list[dict]] = defaultdict(list)
-    for r in rows:
-        by_seed[str(r["seed"])].append(r)
+    for (s, _), r in latest.items():
+        by_seed[s].append(r)
     return {s: model_only_rates(rs) for s, rs in by_seed.items()}
 
 

@@ -180,6 +180,7 @@ def test_model_alone_is_a_line_and_a_paired_reference(tmp_path):
     _write_run(tmp_path / "s0" / "rp", "random_plan", 0, [0.0, 0.2])       # AUC 0.1
     _write_model_only(tmp_path / "s0", 0, [True, False, False, False], [True, True, False, False])  # 0.25 / 0.5
     _write_model_only(tmp_path / "s1", 1, [True, True, False, False], [True, True, True, True])     # 0.5 / 1.0
+    _write_model_only(tmp_path / "s1" / "again", 1, [True, True, False, False], [True] * 4)  # another job's copy
     made = report([tmp_path], tmp_path / "rep")
     label = "model alone (no MDE) ± 95% CI"
     assert made["ceiling_lines"] == {"model_only:test_success": (pytest.approx(0.375), label),
