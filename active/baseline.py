@@ -26,7 +26,7 @@ if TYPE_CHECKING:  # the report reads these files without importing the planner 
 log = logging.getLogger(__name__)
 
 FILE = "model_only.csv"
-FIELDS = ["seed", "problem", "goal", "found", "goal_reached", "category", "final_spill", "digest"]
+FIELDS = ["seed", "problem", "goal", "found", "goal_reached", "category", "final_spill", "digest"]  # loop.OUTCOME_FIELDS
 
 
 def load(path: Path, digests: frozenset[str], n: int) -> list[dict] | None:
@@ -46,7 +46,7 @@ def measure(pool: "PlanPool", executor: "PouringExecutor", problems: Mapping[int
     found (one target-world simulation); returns seed -> one row per problem (without the digest)."""
     from planner.pool import PlanRequest
 
-    from .loop import SimNeed, derive_seed, execute_needs  # the run's own seeding and batching
+    from .loop import SimNeed, derive_seed, execute_needs, problem_outcomes  # the run's seeding, batching, rows
 
     seeds = list(problems)
     groups = [([PlanRequest("plan", p.start, p.goal, d_max=d_max, seed=derive_seed(s, "model-only-plan", k))
@@ -57,17 +57,8 @@ def measure(pool: "PlanPool", executor: "PouringExecutor", problems: Mapping[int
     needs = [SimNeed([problems[s][k] for k in idx[s]], [found[s][k].actions for k in idx[s]], len(problems[s]))
              for s in seeds]
     executed = execute_needs(executor, needs)
-    out: dict[int, list[dict]] = {}
-    for s, results in zip(seeds, executed):
-        by_k = dict(zip(idx[s], results))
-        out[s] = []
-        for k, p in enumerate(problems[s]):
-            r = by_k.get(k)
-            out[s].append({"seed": s, "problem": k, "goal": round(float(p.goal), 4), "found": r is not None,
-                           "goal_reached": bool(r is not None and r.goal_reached),
-                           "category": r.category if r is not None else "",
-                           "final_spill": round(float(r.final_spill), 4) if r is not None else ""})
-    return out
+    return {s: [{"seed": s, **row} for row in problem_outcomes(problems[s], dict(zip(idx[s], results)))]
+            for s, results in zip(seeds, executed)}
 
 
 def save(path: Path, rows: list[dict], digest: str) -> list[dict]:

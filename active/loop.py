@@ -27,7 +27,7 @@ import time
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Generator, Mapping
+from typing import Any, Generator, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -54,6 +54,9 @@ RESULT_FIELDS = ["method", "seed", "iteration", "n_trajectories", "n_transitions
 CATEGORY_FIELDS = ["method", "seed", "iteration", "trajectory", "category", "source", "n_candidates", "steps",
                    "stuck", "stuck_on", "final_spill", "goal", "goal_reached"]
 CALIBRATION_FIELDS = ["method", "seed", "iteration", "n", "coverage50", "coverage80", "coverage95", "nll"]
+#: one row per test problem and iteration (``tests.csv``): what became of each problem, not only the rates
+OUTCOME_FIELDS = ["problem", "goal", "found", "goal_reached", "category", "final_spill"]
+TEST_FIELDS = ["method", "seed", "iteration", *OUTCOME_FIELDS]
 #: result columns that are wall-clock times (excluded when comparing a resumed run with a fresh one)
 TIMING_FIELDS = {"plan_seconds", "sim_seconds", "fit_seconds", "test_seconds", "iteration_seconds"}
 NOOP = np.array([pour(0.0, 0.0)])  # padding trajectory: keeps the number of batch sizes (compiled solvers) small
@@ -329,6 +332,19 @@ def execute_needs(executor: PouringExecutor, needs: list[SimNeed]) -> list[list]
     return out
 
 
+def problem_outcomes(problems: Sequence[Problem], executed: Mapping[int, Any]) -> list[dict]:
+    """One row per test problem (:data:`OUTCOME_FIELDS`): ``executed`` maps the index of each problem whose
+    plan was found to its execution result; the others are rows with ``found`` False and no category."""
+    rows = []
+    for k, p in enumerate(problems):
+        r = executed.get(k)
+        rows.append({"problem": k, "goal": round(float(p.goal), 4), "found": r is not None,
+                     "goal_reached": bool(r is not None and r.goal_reached),
+                     "category": r.category if r is not None else "",
+                     "final_spill": round(float(r.final_spill), 4) if r is not None else ""})
+    return rows
+
+
 def serve_alone(ctx: Context, need: PlanNeed | SimNeed) -> list:
     """What a run waiting for ``need`` gets when it runs by itself."""
     if isinstance(need, PlanNeed):
@@ -368,7 +384,7 @@ class MethodRun:
         self.sampler = ActionSampler(ctx.planner_cfg)
         self.state = {"completed": 0, "digest": config_digest(ctx.cfg), "X": torch.zeros(0, 8, dtype=torch.float64),
                       "y": torch.zeros(0, dtype=torch.float64), "results": [], "categories": [], "calibration": [],
-                      "n_trajectories": 0, "mde_path": None}
+                      "tests": [], "n_trajectories": 0, "mde_path": None}
         self.mde = make_mde()
         state_path = self.dir / "state.pt"
         if state_path.exists():
@@ -383,6 +399,7 @@ class MethodRun:
             raise RuntimeError(f"{path} was written by a run with a different configuration; use a new output "
                                f"directory (hydra.run.dir=...) or delete {self.dir} to restart this method")
         st["digest"] = self.state["digest"]  # an accepted legacy digest: saved as the current one from now on
+        st.setdefault("tests", [])  # state of a run made before tests.csv existed: its rows start here
         self.state = st
         if st["mde_path"]:
             self.mde = load_mde_checkpoint(type(self.mde), self.dir / st["mde_path"], self.mde, st["X"], path)
@@ -401,6 +418,7 @@ class MethodRun:
         write_csv(self.dir / "results.csv", self.state["results"], fields)
         write_csv(self.dir / "categories.csv", self.state["categories"], CATEGORY_FIELDS)
         write_csv(self.dir / "calibration.csv", self.state["calibration"], CALIBRATION_FIELDS)
+        write_csv(self.dir / "tests.csv", self.state["tests"], TEST_FIELDS)
         save_torch(self.dir / "state.pt", self.state)  # last: it marks the iteration as complete
 
     # ------------------------------------------------------------------ the loop
@@ -554,9 +572,11 @@ class MethodRun:
         plans = [res.trajectory if res.found else None for res in found]
         idx = [k for k, p in enumerate(plans) if p is not None]
         success = refined = 0
+        executed: dict[int, Any] = {}
         if idx:
             probs = [ctx.test_problems[k] for k in idx]
             results = yield SimNeed(probs, [plans[k].actions for k in idx], len(ctx.test_problems))
+            executed = dict(zip(idx, results))
             success = sum(bool(r.goal_reached) for r in results)
             if exp.refine_steps:
                 from .refine import refine_plans
@@ -566,6 +586,8 @@ class MethodRun:
                 results = yield SimNeed(probs, list(ref.actions), len(ctx.test_problems))
                 refined = sum(bool(r.goal_reached) for r in results)
         n = len(ctx.test_problems)
+        self.state["tests"] += [{"method": self.method, "seed": ctx.seed, "iteration": it + 1, **row}
+                                for row in problem_outcomes(ctx.test_problems, executed)]
         self.last_refined_success = refined / n if exp.refine_steps else None
         return success / n, len(idx) / n
 

@@ -8,6 +8,10 @@ directories and writes:
 * ``learning_curves.png``: test success and plan-found rate per iteration and method, mean over
   seeds with a 95% confidence interval (Student t over seeds; the paper's Fig. 5);
 * ``trajectory_types.png``: stacked ratios of training trajectory types per method (Fig. 4);
+* ``test_outcomes.png`` (where the runs wrote ``tests.csv``): what became of the test problems, per method
+  and iteration (goal reached, no plan found, or the executed plan's failure: stuck in the plant, spilled,
+  a clean pour of the wrong amount, other), beside the model alone's; shares also in ``test_outcomes.csv``
+  and a table in ``summary.md``;
 * ``calibration.png``: MDE interval coverage and NLL on held-out target-world transitions per iteration;
 * ``summary.csv`` / ``summary.md``: area under the learning curve per method with its 95% CI;
 * ``paired.csv`` (and a second table in ``summary.md``): per method, the difference of its AUC to a
@@ -50,6 +54,11 @@ CATEGORY_COLOURS = {"successful_pour": "#2c7fb8", "unsuccessful_pour": "#f03b20"
 DEFAULT_REFERENCE = "random_plan"
 CEILING_PANELS = {"test_success": "success", "test_plan_found": "found"}  # panel -> key of the ceiling entry
 MODEL_ONLY = "model alone (no MDE)"  # the reference name of the model-only rows in paired tables
+#: what became of a test problem (:func:`test_outcome`), in stacking order, with its colour
+OUTCOMES = {"goal reached": "#2c7fb8", "clean pour, wrong amount": "#a6bddb", "spilled": "#f03b20",
+            "stuck in plant": "#31a354", "other": "#bdbdbd", "no plan found": "#fed976"}
+OUTCOME_OF_CATEGORY = {"successful_pour": "clean pour, wrong amount", "unsuccessful_pour": "spilled",
+                       "stuck_in_plant": "stuck in plant", "other": "other"}
 
 
 def mean_ci(values: Sequence[float], level: float = 0.95) -> tuple[float, float]:
@@ -154,6 +163,82 @@ def plot_trajectory_types(rows: list[dict], path: Path) -> dict[str, dict[str, f
     safeio.save_figure(fig, path)
     plt.close(fig)
     return ratios
+
+
+def _true(v: Any) -> bool:
+    return str(v) in ("True", "true", "1")
+
+
+def test_outcome(row: Mapping[str, Any]) -> str:
+    """One test problem's outcome (a key of :data:`OUTCOMES`) from its ``tests.csv`` / ``model_only.csv`` row."""
+    if not _true(row["found"]):
+        return "no plan found"
+    if _true(row["goal_reached"]):
+        return "goal reached"
+    return OUTCOME_OF_CATEGORY.get(str(row["category"]), "other")
+
+
+def outcome_shares(rows: Sequence[Mapping[str, Any]]) -> dict[str, float]:
+    """Share of each outcome among ``rows`` (all of :data:`OUTCOMES`, zeros included)."""
+    n = max(1, len(rows))
+    counts = defaultdict(int)
+    for r in rows:
+        counts[test_outcome(r)] += 1
+    return {o: counts[o] / n for o in OUTCOMES}
+
+
+def test_outcome_table(tests: list[dict], alone: list[dict]) -> list[dict]:
+    """Rows of ``test_outcomes.csv``: per method and iteration (and ``all``), the share of each outcome over
+    its seeds' test problems; the model alone's (one set of problems per seed) as ``iteration = all``. A
+    (method, seed, iteration, problem) found in several files counts once (the last row)."""
+    latest = {(r["method"], str(r["seed"]), int(r["iteration"]), r["problem"]): r for r in tests}
+    groups: dict[tuple[str, str], list] = defaultdict(list)
+    for (m, _s, it, _p), r in latest.items():
+        groups[(m, str(it))].append(r)
+        groups[(m, "all")].append(r)
+    alone_latest = list({(str(r["seed"]), r["problem"]): r for r in alone}.values())
+    if alone_latest:
+        groups[(MODEL_ONLY, "all")] = alone_latest
+    order = sorted(groups, key=lambda k: (k[0] == MODEL_ONLY, k[0], k[1] == "all", int(k[1]) if k[1] != "all" else 0))
+    return [{"method": m, "iteration": it, "n": len(groups[(m, it)]),
+             **{o: round(v, 4) for o, v in outcome_shares(groups[(m, it)]).items()}} for m, it in order]
+
+
+def plot_test_outcomes(table: list[dict], path: Path) -> None:
+    """One panel per method: stacked outcome shares of the test problems by iteration, and the model alone's
+    (the same problems, no MDE) as a bar of its own at the right, so where a method loses plans shows."""
+    methods = sorted({r["method"] for r in table if r["method"] != MODEL_ONLY})
+    alone = [r for r in table if r["method"] == MODEL_ONLY]
+    fig, axes = plt.subplots(1, max(1, len(methods)), figsize=(1.5 + 3.6 * max(1, len(methods)), 3.8), dpi=110,
+                             sharey=True, squeeze=False)
+    for ax, m in zip(axes[0], methods):
+        rows = [r for r in table if r["method"] == m and r["iteration"] != "all"]
+        labels = [str(r["iteration"]) for r in rows] + (["alone"] if alone else [])
+        rows = rows + alone[:1]
+        bottom = np.zeros(len(rows))
+        for o, colour in OUTCOMES.items():
+            vals = np.array([float(r[o]) for r in rows])
+            ax.bar(range(len(rows)), vals, bottom=bottom, color=colour, label=o, width=0.8)
+            bottom += vals
+        ax.set_xticks(range(len(rows)), labels, fontsize=8)
+        ax.set_title(m, fontsize=10)
+        ax.set_xlabel("iteration" + (" (and the model alone)" if alone else ""))
+        ax.set_ylim(0, 1)
+    axes[0][0].set_ylabel("share of test problems (all seeds)")
+    axes[0][-1].legend(*axes[0][0].get_legend_handles_labels(), fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1))
+    fig.tight_layout()
+    safeio.save_figure(fig, path)
+    plt.close(fig)
+
+
+def test_outcome_lines(table: list[dict]) -> list[str]:
+    """The ``all`` rows of :func:`test_outcome_table` as a markdown table for ``summary.md``."""
+    lines = ["What became of the test problems (share over all iterations and seeds):", "",
+             "| method | problems | " + " | ".join(OUTCOMES) + " |", "|---|---:|" + "---:|" * len(OUTCOMES)]
+    for r in table:
+        if r["iteration"] == "all":
+            lines.append(f"| {r['method']} | {r['n']} | " + " | ".join(f"{float(r[o]):.2f}" for o in OUTCOMES) + " |")
+    return lines
 
 
 def plot_calibration(rows: list[dict], path: Path) -> None:
@@ -405,7 +490,8 @@ def report(dirs: Sequence[Path], out: Path, reference: str | None = None,
     elif ceiling is not None:
         ceiling = check_ceiling(ceiling)
     out.mkdir(parents=True, exist_ok=True)
-    alone = model_only_per_seed(collect(dirs, MODEL_ONLY_FILE))
+    alone_rows = collect(dirs, MODEL_ONLY_FILE)
+    alone = model_only_per_seed(alone_rows)
     alone_summary = model_only_summary(alone) if alone else None
     ceiling_lines = plot_learning_curves(results, out / "learning_curves.png", ceiling, alone_summary)
     summary = summarise(results)
@@ -433,10 +519,18 @@ def report(dirs: Sequence[Path], out: Path, reference: str | None = None,
         lines += ["", f"The {MODEL_ONLY}, the same test problems, planner and budget, {len(alone)} seed(s): "
                       f"test success {s:.3f} ± {sh:.3f}, plan found {f:.3f} ± {fh:.3f}. Each method against it:",
                   "", *paired_table(alone_pairs)[:-2]]
-    safeio.write_text(out / "summary.md", "\n".join(lines) + "\n")
-    made = {"learning_curves": str(out / "learning_curves.png"), "summary": summary, "table": "\n".join(lines),
+    made = {"learning_curves": str(out / "learning_curves.png"), "summary": summary,
             "paired": pair_rows, "paired_seeds": pair_seeds, "ceiling": ceiling, "ceiling_lines": ceiling_lines,
             "model_only": alone_summary, "paired_model_only": alone_pairs}
+    tests = collect(dirs, "tests.csv")
+    if tests:
+        table = test_outcome_table(tests, alone_rows)
+        write_csv(out / "test_outcomes.csv", table, fields=["method", "iteration", "n", *OUTCOMES])
+        plot_test_outcomes(table, out / "test_outcomes.png")
+        lines += ["", *test_outcome_lines(table)]
+        made["test_outcomes"] = table
+    safeio.write_text(out / "summary.md", "\n".join(lines) + "\n")
+    made["table"] = "\n".join(lines)
     cats = collect(dirs, "categories.csv")
     if cats:
         made["trajectory_types"] = plot_trajectory_types(cats, out / "trajectory_types.png")

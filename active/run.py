@@ -7,8 +7,9 @@
 
 Writes, under the run directory (``outputs/<experiment>/<method>/seed<seed>`` by default; running the
 same command again resumes it): the resolved config, per method ``results.csv``, ``categories.csv``,
-``calibration.csv``, ``dataset.pt``, MDE checkpoints and ``state.pt``, per seed ``model_only.csv``
-(the model alone on the test problems, :mod:`active.baseline`), and the figures of
+``calibration.csv``, ``tests.csv`` (what became of each test problem), ``dataset.pt``, MDE checkpoints
+and ``state.pt``, per seed ``model_only.csv`` (the model alone on the test problems,
+:mod:`active.baseline`), and the figures of
 ``active.report`` in ``report/``. With ``seeds=[...]`` every seed gets such a directory,
 ``seed<s>/``, and ``report/`` covers them all. ``run.lock`` names the run writing the directory (a second run
 into it is refused; a killed one's lock is taken over).

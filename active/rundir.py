@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 CALIBRATION_FORMAT = "active-mde/calibration-set"
 CALIBRATION_VERSION = 1
 #: files a method directory holds besides state.pt (named in messages about what survives)
-METHOD_FILES = ("results.csv", "categories.csv", "calibration.csv", "dataset.pt", "mde_iter*.pt")
+METHOD_FILES = ("results.csv", "categories.csv", "calibration.csv", "tests.csv", "dataset.pt", "mde_iter*.pt")
 
 
 # ------------------------------------------------------------------ digests
@@ -191,7 +191,7 @@ def _check_readable_checkpoint(path: Path, state_path: Path) -> None:
 
     fix = (f"it is the MDE of the last completed iteration, named by {state_path}. Restore it from a backup, or "
            f"delete {state_path} and run the same command again to redo this method from iteration 1 "
-           f"({', '.join(METHOD_FILES[:4])} beside it are intact but are rewritten then: copy them elsewhere first "
+           f"({', '.join(METHOD_FILES[:5])} beside it are intact but are rewritten then: copy them elsewhere first "
            f"to keep them)")
     if not path.is_file():
         raise RunFileError(f"{path} is missing; {fix}")

@@ -203,3 +203,44 @@ def test_no_model_only_file_no_line(tmp_path):
     made = report([tmp_path / "a"], tmp_path / "rep")
     assert made["model_only"] is None and made["paired_model_only"] == []
     assert not (tmp_path / "rep" / "paired_model_only.csv").exists()
+
+
+def _write_tests(d, method, seed, outcomes):
+    """tests.csv of one run: ``outcomes`` per iteration, one (found, goal_reached, category) per problem."""
+    rows = [{"method": method, "seed": seed, "iteration": it + 1, "problem": k, "goal": 0.4, "found": f,
+             "goal_reached": g, "category": c, "final_spill": 0.0 if f else ""}
+            for it, probs in enumerate(outcomes) for k, (f, g, c) in enumerate(probs)]
+    write_csv(d / "tests.csv", rows)
+
+
+def test_test_outcomes_table_figure_and_summary(tmp_path):
+    """tests.csv beside the runs: per method and iteration the share of each outcome (a found plan's failure
+    by its trajectory category), over seeds; the model alone's outcomes beside them; a row seen twice counts once."""
+    ok, miss = (True, True, "successful_pour"), (False, False, "")
+    stuck, spill, short = (True, False, "stuck_in_plant"), (True, False, "unsuccessful_pour"), (True, False, "successful_pour")
+    _write_run(tmp_path / "s0" / "ab", "active_balanced", 0, [0.5, 0.5])
+    _write_tests(tmp_path / "s0" / "ab", "active_balanced", 0, [[ok, miss], [ok, stuck]])
+    _write_run(tmp_path / "s1" / "ab", "active_balanced", 1, [0.0, 0.5])
+    _write_tests(tmp_path / "s1" / "ab", "active_balanced", 1, [[spill, short], [ok, miss]])
+    _write_tests(tmp_path / "s1" / "copy", "active_balanced", 1, [[spill, short], [ok, miss]])  # another job's copy
+    _write_model_only(tmp_path / "s0", 0, [True, False], [True, True])
+    made = report([tmp_path], tmp_path / "rep")
+    rows = {(r["method"], r["iteration"]): r for r in made["test_outcomes"]}
+    it1 = rows[("active_balanced", "1")]
+    assert it1["n"] == 4
+    assert (it1["goal reached"], it1["no plan found"], it1["spilled"], it1["clean pour, wrong amount"]) == (0.25,) * 4
+    everything = rows[("active_balanced", "all")]
+    assert everything["n"] == 8 and everything["goal reached"] == 0.375 and everything["stuck in plant"] == 0.125
+    alone = rows[("model alone (no MDE)", "all")]
+    assert alone["n"] == 2 and alone["goal reached"] == 0.5 and alone["no plan found"] == 0.0
+    assert sum(v for k, v in alone.items() if k not in ("method", "iteration", "n")) == pytest.approx(1.0)
+    assert (tmp_path / "rep" / "test_outcomes.png").stat().st_size > 0
+    assert len(read_csv(tmp_path / "rep" / "test_outcomes.csv")) == len(made["test_outcomes"])
+    md = (tmp_path / "rep" / "summary.md").read_text()
+    assert "| active_balanced | 8 | 0.38 |" in md and "| model alone (no MDE) | 2 | 0.50 |" in md
+
+
+def test_no_tests_file_no_outcome_figure(tmp_path):
+    _write_run(tmp_path / "a", "active_balanced", 0, [0.2, 0.6])
+    made = report([tmp_path / "a"], tmp_path / "rep")
+    assert "test_outcomes" not in made and not (tmp_path / "rep" / "test_outcomes.png").exists()

@@ -61,7 +61,17 @@ def test_end_to_end_tiny_run_writes_everything(straight_run):
         assert data["X"].shape[1] == 8 and len(data["X"]) == len(data["y"]) == int(rows[-1]["n_transitions"])
         assert (data["y"] >= 0).all()
         assert len(read_csv(out / method / "calibration.csv")) == 2
-    for fig in ("learning_curves.png", "trajectory_types.png", "calibration.png", "summary.md"):
+        # one row per test problem and iteration; its shares are the results' rates
+        tests = read_csv(out / method / "tests.csv")
+        n_test = len(tests) // 2
+        assert n_test > 0 and [int(r["iteration"]) for r in tests] == [1] * n_test + [2] * n_test
+        for row in rows:
+            mine = [r for r in tests if r["iteration"] == row["iteration"]]
+            assert [int(r["problem"]) for r in mine] == list(range(n_test))
+            assert sum(r["goal_reached"] == "True" for r in mine) / n_test == pytest.approx(float(row["test_success"]))
+            assert sum(r["found"] == "True" for r in mine) / n_test == pytest.approx(float(row["test_plan_found"]))
+            assert all(r["category"] == "" for r in mine if r["found"] == "False")
+    for fig in ("learning_curves.png", "trajectory_types.png", "calibration.png", "test_outcomes.png", "summary.md"):
         assert (out / "report" / fig).stat().st_size > 0
     assert {s["method"] for s in made["summary"]} == {"active_balanced", "random_actions"}
     assert (out / "config.json").exists()
@@ -162,7 +172,8 @@ def test_resume_after_kill_gives_identical_results(cache, straight_run, tmp_path
     assert read_owner(out) is None  # released at the end
     for method in ("active_balanced", "random_actions"):
         assert _comparable(out / method / "results.csv") == _comparable(straight / method / "results.csv")
-        assert read_csv(out / method / "categories.csv") == read_csv(straight / method / "categories.csv")
+        for name in ("categories.csv", "tests.csv"):
+            assert read_csv(out / method / name) == read_csv(straight / method / name)
         a, b = torch.load(out / method / "dataset.pt"), torch.load(straight / method / "dataset.pt")
         assert torch.equal(a["X"], b["X"]) and torch.equal(a["y"], b["y"])
     assert read_csv(out / "model_only.csv") == read_csv(straight / "model_only.csv")
@@ -172,7 +183,7 @@ def _same_run(a: Path, b: Path) -> None:
     """Two run directories hold the same results (timing columns aside), method by method."""
     for method in ("active_balanced", "random_actions"):
         assert _comparable(a / method / "results.csv") == _comparable(b / method / "results.csv")
-        for name in ("categories.csv", "calibration.csv"):
+        for name in ("categories.csv", "calibration.csv", "tests.csv"):
             assert read_csv(a / method / name) == read_csv(b / method / name)
         x, y = torch.load(a / method / "dataset.pt"), torch.load(b / method / "dataset.pt")
         assert torch.equal(x["X"], y["X"]) and torch.equal(x["y"], y["y"])
@@ -383,7 +394,7 @@ def test_model_alone_is_measured_once_and_rebuilt_for_another_config(cache, stra
     ("active_balanced/mde_iter002.pt", "truncate", r"mde_iter002.pt is unreadable \(truncated or damaged"),
     ("random_actions/mde_iter002.pt", "garbage", r"mde_iter002.pt is unreadable \(not a torch file"),
     ("calibration_set.pt", "truncate", r"calibration_set.pt is unreadable .*it is rebuilt from the configuration"),
-    ("random_actions/state.pt", "garbage", r"state.pt is unreadable .*results.csv beside it are intact and kept"),
+    ("random_actions/state.pt", "garbage", r"state.pt is unreadable .*results.csv, tests.csv beside it are intact and kept"),
 ])
 def test_damaged_run_files_are_named_with_the_fix(cache, straight_run, tmp_path, name, damage, match):
     out = _copy_run(straight_run[0], tmp_path / "run")
