@@ -341,3 +341,18 @@ def test_a_method_spec_enters_the_digest_only_when_it_differs_from_what_runs_had
         config_digest(base)
     assert config_digest(compose_config(["experiment=tiny", "methods.active_mean.acquisition.c=0.2"])) == \
         config_digest(base)  # tiny runs active_balanced and random_actions only
+
+
+def test_mde_homoscedastic_option_is_the_default_mde_with_two_fields_changed():
+    """``mde=homoscedastic`` (session 31): the default MDE with one noise level per skill and labels capped at 0.1;
+    every other field as ``mde=default``; the same run configuration (digest) as the two overrides spelled out."""
+    from hydra.utils import instantiate
+
+    base, homo = compose_config(["experiment=tiny"]), compose_config(["experiment=tiny", "mde=homoscedastic"])
+    changed = {k for k in base["mde"] if base["mde"][k] != homo["mde"].get(k)}
+    assert changed == {"heteroscedastic", "label_max"} and set(homo["mde"]) == set(base["mde"])
+    assert (homo["mde"]["heteroscedastic"], homo["mde"]["label_max"]) == (False, 0.1)
+    spelled = compose_config(["experiment=tiny", "mde.heteroscedastic=false", "mde.label_max=0.1"])
+    assert config_digest(homo) == config_digest(spelled) != config_digest(base)
+    mde = instantiate(homo["mde"], _convert_="all")
+    assert mde.config.heteroscedastic is False and mde.config.label_max == 0.1
