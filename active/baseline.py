@@ -72,5 +72,15 @@ def rates(rows: Sequence[Mapping[str, Any]]) -> tuple[float, float]:
     n = len(rows)
     if n == 0:
         return float("nan"), float("nan")
-    truth = ("true", "1", "True")
-    return (sum(str(r["goal_reached"]) in truth for r in rows) / n, sum(str(r["found"]) in truth for r in rows) / n)
+    return sum(is_true(r["goal_reached"]) for r in rows) / n, sum(is_true(r["found"]) for r in rows) / n
+
+
+def is_true(value: Any) -> bool:
+    """A boolean field of a row as written (True) or read back from CSV ("True")."""
+    return str(value) in ("True", "true", "1")
+
+
+def latest_rows(rows: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+    """One row per (seed, problem): a problem found in several files, e.g. one per job of a per-method sweep,
+    counts once (the last row wins)."""
+    return list({(str(r["seed"]), r["problem"]): r for r in rows}.values())

@@ -45,6 +45,7 @@ from scipy import stats  # noqa: E402
 
 import safeio  # noqa: E402
 from .baseline import FILE as MODEL_ONLY_FILE  # noqa: E402
+from .baseline import is_true, latest_rows  # noqa: E402
 from .baseline import rates as model_only_rates  # noqa: E402
 from .io import read_csv, write_csv  # noqa: E402
 
@@ -165,15 +166,11 @@ def plot_trajectory_types(rows: list[dict], path: Path) -> dict[str, dict[str, f
     return ratios
 
 
-def _true(v: Any) -> bool:
-    return str(v) in ("True", "true", "1")
-
-
 def test_outcome(row: Mapping[str, Any]) -> str:
     """One test problem's outcome (a key of :data:`OUTCOMES`) from its ``tests.csv`` / ``model_only.csv`` row."""
-    if not _true(row["found"]):
+    if not is_true(row["found"]):
         return "no plan found"
-    if _true(row["goal_reached"]):
+    if is_true(row["goal_reached"]):
         return "goal reached"
     return OUTCOME_OF_CATEGORY.get(str(row["category"]), "other")
 
@@ -196,9 +193,8 @@ def test_outcome_table(tests: list[dict], alone: list[dict]) -> list[dict]:
     for (m, _s, it, _p), r in latest.items():
         groups[(m, str(it))].append(r)
         groups[(m, "all")].append(r)
-    alone_latest = list({(str(r["seed"]), r["problem"]): r for r in alone}.values())
-    if alone_latest:
-        groups[(MODEL_ONLY, "all")] = alone_latest
+    if alone:
+        groups[(MODEL_ONLY, "all")] = latest_rows(alone)
     order = sorted(groups, key=lambda k: (k[0] == MODEL_ONLY, k[0], k[1] == "all", int(k[1]) if k[1] != "all" else 0))
     return [{"method": m, "iteration": it, "n": len(groups[(m, it)]),
              **{o: round(v, 4) for o, v in outcome_shares(groups[(m, it)]).items()}} for m, it in order]
@@ -393,10 +389,9 @@ def paired_table(rows: list[dict]) -> list[str]:
 def model_only_per_seed(rows: list[dict]) -> dict[str, tuple[float, float]]:
     """seed -> (success, found) of the model alone on that seed's test problems (``model_only.csv`` rows; a
     problem found in several files, e.g. one per job of a per-method sweep, counts once: the last row wins)."""
-    latest = {(str(r["seed"]), r["problem"]): r for r in rows}
-    by_seed: dict[str, list[dict]] = defaultdict(list)
-    for (s, _), r in latest.items():
-        by_seed[s].append(r)
+    by_seed: dict[str, list] = defaultdict(list)
+    for r in latest_rows(rows):
+        by_seed[str(r["seed"])].append(r)
     return {s: model_only_rates(rs) for s, rs in by_seed.items()}
 
 
