@@ -7,7 +7,8 @@ directories and writes:
 
 * ``learning_curves.png``: test success and plan-found rate per iteration and method, mean over
   seeds with a 95% confidence interval (Student t over seeds; the paper's Fig. 5);
-* ``trajectory_types.png``: stacked ratios of training trajectory types per method (Fig. 4);
+* ``trajectory_types.png``: stacked ratios of training trajectory types per method (Fig. 4), also in
+  ``trajectory_types.csv`` (per iteration) and a table in ``summary.md``;
 * ``test_outcomes.png`` (where the runs wrote ``tests.csv``): what became of the test problems, per method
   and iteration (goal reached, no plan found, or the executed plan's failure: stuck in the plant, spilled,
   a clean pour of the wrong amount, other), beside the model alone's; shares also in ``test_outcomes.csv``
@@ -144,12 +145,38 @@ def plot_learning_curves(rows: list[dict], path: Path, ceiling: Mapping[str, Any
     return drawn
 
 
-def plot_trajectory_types(rows: list[dict], path: Path) -> dict[str, dict[str, float]]:
-    counts: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
+def trajectory_type_table(rows: Sequence[Mapping[str, Any]]) -> list[dict]:
+    """Rows of ``trajectory_types.csv``: per method and iteration (and ``all``), the share of each training
+    trajectory type (:data:`CATEGORY_ORDER`; a category outside it counts as ``other``) over its seeds."""
+    groups: dict[tuple[str, str], list[str]] = defaultdict(list)
     for r in rows:
-        counts[r["method"]][r["category"]] += 1
-    methods = sorted(counts)
-    ratios = {m: {c: counts[m][c] / max(1, sum(counts[m].values())) for c in CATEGORY_ORDER} for m in methods}
+        c = r["category"] if r["category"] in CATEGORY_ORDER else "other"
+        groups[(r["method"], str(r["iteration"]))].append(c)
+        groups[(r["method"], "all")].append(c)
+    order = sorted(groups, key=lambda k: (k[0], k[1] == "all", int(k[1]) if k[1] != "all" else 0))
+    return [{"method": m, "iteration": it, "n": len(groups[(m, it)]),
+             **{c: round(groups[(m, it)].count(c) / len(groups[(m, it)]), 4) for c in CATEGORY_ORDER}}
+            for m, it in order]
+
+
+def trajectory_type_lines(table: list[dict]) -> list[str]:
+    """The ``all`` rows of :func:`trajectory_type_table` as a markdown table for ``summary.md``: what the
+    methods collected (the paper's Fig. 4a), to read beside what became of the test problems."""
+    lines = ["Training trajectories by type (share over all iterations and seeds; the paper's Fig. 4a):", "",
+             "| method | trajectories | " + " | ".join(c.replace("_", " ") for c in CATEGORY_ORDER) + " |",
+             "|---|---:|" + "---:|" * len(CATEGORY_ORDER)]
+    for r in table:
+        if r["iteration"] == "all":
+            lines.append(f"| {r['method']} | {r['n']} | " + " | ".join(f"{float(r[c]):.2f}" for c in CATEGORY_ORDER)
+                         + " |")
+    return lines
+
+
+def plot_trajectory_types(table: list[dict], path: Path) -> dict[str, dict[str, float]]:
+    """Stacked shares of the training trajectory types per method (the ``all`` rows of
+    :func:`trajectory_type_table`); returns them as {method: {category: share}}."""
+    ratios = {r["method"]: {c: float(r[c]) for c in CATEGORY_ORDER} for r in table if r["iteration"] == "all"}
+    methods = sorted(ratios)
     fig, ax = plt.subplots(figsize=(1.6 + 1.2 * max(1, len(methods)), 3.8), dpi=110)
     bottom = np.zeros(len(methods))
     for c in CATEGORY_ORDER:
@@ -524,11 +551,14 @@ def report(dirs: Sequence[Path], out: Path, reference: str | None = None,
         plot_test_outcomes(table, out / "test_outcomes.png")
         lines += ["", *test_outcome_lines(table)]
         made["test_outcomes"] = table
-    safeio.write_text(out / "summary.md", "\n".join(lines) + "\n")
-    made["table"] = "\n".join(lines)
     cats = collect(dirs, "categories.csv")
     if cats:
-        made["trajectory_types"] = plot_trajectory_types(cats, out / "trajectory_types.png")
+        types = trajectory_type_table(cats)
+        write_csv(out / "trajectory_types.csv", types, fields=["method", "iteration", "n", *CATEGORY_ORDER])
+        made["trajectory_types"] = plot_trajectory_types(types, out / "trajectory_types.png")
+        lines += ["", *trajectory_type_lines(types)]
+    safeio.write_text(out / "summary.md", "\n".join(lines) + "\n")
+    made["table"] = "\n".join(lines)
     cal = collect(dirs, "calibration.csv")
     if cal:
         plot_calibration(cal, out / "calibration.png")

@@ -45,6 +45,25 @@ def test_report_aggregates_seeds_and_methods(tmp_path):
     assert len(read_csv(tmp_path / "rep" / "summary.csv")) == 2
 
 
+def test_trajectory_type_table_counts_per_iteration_and_overall(tmp_path):
+    from active.report import trajectory_type_table
+
+    rows = [{"method": "m", "seed": "0", "iteration": "1", "category": c}
+            for c in ["successful_pour", "stuck_in_plant", "stuck_in_plant", "mystery"]]
+    rows += [{"method": "m", "seed": "1", "iteration": "2", "category": c} for c in ["unsuccessful_pour", "successful_pour"]]
+    table = {r["iteration"]: r for r in trajectory_type_table(rows)}
+    assert list(table) == ["1", "2", "all"]
+    assert table["1"]["n"] == 4 and table["1"]["stuck_in_plant"] == 0.5 and table["1"]["other"] == 0.25
+    assert table["all"]["n"] == 6 and table["all"]["successful_pour"] == pytest.approx(2 / 6, abs=1e-4)
+    assert sum(table["all"][c] for c in ("successful_pour", "unsuccessful_pour", "stuck_in_plant", "other")) \
+        == pytest.approx(1.0, abs=1e-3)
+    _write_run(tmp_path / "a", "active_balanced", 0, [0.2, 0.6])
+    report([tmp_path], tmp_path / "rep")
+    csv_all = [r for r in read_csv(tmp_path / "rep" / "trajectory_types.csv") if r["iteration"] == "all"]
+    assert float(csv_all[0]["successful_pour"]) == 0.5 and float(csv_all[0]["other"]) == 0.25
+    assert "| active_balanced | 4 | 0.50 | 0.00 | 0.25 | 0.25 |" in (tmp_path / "rep" / "summary.md").read_text()
+
+
 def test_report_without_results_says_so(tmp_path):
     with pytest.raises(FileNotFoundError, match="no results.csv"):
         report([tmp_path], tmp_path / "rep")
