@@ -607,7 +607,10 @@ class MethodRun:
 def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):
     """Build the configured acquisition (``configs/acquisition/``, a ``_partial_`` spec instantiated with
     ``hydra.utils.instantiate``) for an MDE and a method's keyword arguments (``c``; each passed only
-    if the class accepts it, as is ``d_max`` = experiment.d_max unless the spec sets it)."""
+    if the class accepts it, as is ``d_max`` = experiment.d_max unless the spec sets it).
+
+    A method whose ``acquisition:`` names a ``_target_`` brings its own spec (e.g. ``active_straddle``), built
+    the same way instead of the configured one, so that one run can compare acquisitions side by side."""
     from hydra.utils import get_class, instantiate
 
     from .acquisition import _check_gamma
@@ -631,8 +634,16 @@ def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):
     partial = instantiate(cfg, _convert_="all")
     params = inspect.signature(cls.__init__).parameters
 
+    own: dict[str, Any] = {}  # a method's own spec (its acquisition: names a _target_) -> its factory
+
     def make(mde: Any, method_kwargs: Mapping[str, Any] | None = None):
-        kw = {k: v for k, v in dict(method_kwargs or {}).items() if k in params}
+        method_kwargs = dict(method_kwargs or {})
+        if "_target_" in method_kwargs:
+            key = json.dumps(method_kwargs, sort_keys=True, default=str)
+            if key not in own:
+                own[key] = acquisition_factory(method_kwargs, exp)
+            return own[key](mde)
+        kw = {k: v for k, v in method_kwargs.items() if k in params}
         if "d_max" in params and "d_max" not in partial.keywords:
             kw["d_max"] = exp.d_max
         # an MDE's marginal view reads its fit's own factorisation (GPyTorch's refactorisation can fail on it)
@@ -648,10 +659,26 @@ def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):
 def check_method_acquisition(name: str, method: Any, make_acquisition: Any) -> None:
     """Refuse, before compute, a method's acquisition keyword that no acquisition takes (a typo would
     otherwise do nothing). A keyword of another built-in acquisition (the paper's ``c`` with
-    ``acquisition=variance``) is allowed: the configured one ignores it, as documented."""
+    ``acquisition=variance``) is allowed: the configured one ignores it, as documented. A method's own spec
+    (``acquisition._target_``) must import and take each of its keywords."""
+    from hydra.utils import get_class
+
     from .acquisition import ACQUISITIONS
 
-    kwargs = set(getattr(method, "acquisition", None) or {})
+    spec = dict(getattr(method, "acquisition", None) or {})
+    if "_target_" in spec:  # the method's own acquisition: its keywords must be its class's
+        try:
+            cls = get_class(spec["_target_"])
+        except Exception as e:
+            raise ValueError(f"methods.{name}.acquisition._target_ = {spec['_target_']!r} cannot be imported ({e}); "
+                             f"built in: {sorted(c.__module__ + '.' + c.__name__ for c in ACQUISITIONS.values())}") \
+                from None
+        unknown = sorted(set(spec) - {"_target_", "_partial_"} - (_keywords(cls) - {"model"}))
+        if unknown:
+            raise ValueError(f"methods.{name}.acquisition: {unknown} is not a parameter of {spec['_target_']}; "
+                             f"it takes {sorted(_keywords(cls) - {'model'})}")
+        return
+    kwargs = set(spec)
     built_in = set().union(*(_keywords(cls) for cls in ACQUISITIONS.values()))
     unknown = sorted(kwargs - set(make_acquisition.accepts) - built_in)
     if unknown:

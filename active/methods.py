@@ -143,7 +143,10 @@ def build_method(name: str, registry: Mapping[str, Any] | None = None) -> Method
     from hydra.utils import instantiate
 
     specs = METHODS if registry is None else _checked(registry, "methods")
-    method = instantiate(dict(specs[check_method(name, specs)]), _convert_="all")
+    spec = dict(specs[check_method(name, specs)])
+    # a method's own acquisition spec (acquisition._target_) is built later, with the MDE: not instantiated here
+    own_acquisition = isinstance(spec.get("acquisition"), Mapping) and "_target_" in spec["acquisition"]
+    method = instantiate(spec, _convert_="all", _recursive_=not own_acquisition)
     if not isinstance(method, Method):
         raise ValueError(f"method {name!r}: {type(method).__name__} is not an active.methods.Method")
     return method

@@ -139,13 +139,54 @@ def test_default_acquisition_is_the_papers_alpha_and_methods_carry_c():
 
     assert compose_config([])["acquisition"] == {"_target_": "active.acquisition.DiscountedMaxUCB", "_partial_": True,
                                                  "gamma": 1.0}
-    assert sorted(METHODS) == ["active_balanced", "active_cautious", "active_mean", "random_actions", "random_plan"]
+    assert sorted(METHODS) == ["active_balanced", "active_cautious", "active_mean", "active_straddle", "random_actions",
+                               "random_plan"]
     cs = {m: build_method(m).acquisition for m in METHODS}
     assert cs == {"random_actions": None, "random_plan": None, "active_cautious": {"c": -0.1},
-                  "active_mean": {"c": 0.0}, "active_balanced": {"c": 0.1}}
+                  "active_mean": {"c": 0.0}, "active_balanced": {"c": 0.1},
+                  "active_straddle": {"_target_": "active.acquisition.TrajectoryStraddle", "kappa": 1.96, "gamma": 1.0}}
     assert isinstance(build_method("random_actions"), RandomActions) and not build_method("random_actions").plans
     assert isinstance(build_method("random_plan"), RandomPlan)
     assert isinstance(build_method("active_mean"), ActiveChoice)
+
+
+def test_a_method_with_its_own_acquisition_spec_ignores_the_configured_one():
+    """active_straddle names acquisition._target_: one run can compare it with the paper's methods, which keep the
+    configured acquisition (here the paper's alpha) and their c."""
+    from active.experiment import ExperimentConfig
+    from active.loop import acquisition_factory, check_method_acquisition
+    from active.methods import build_method
+    from active.run import compose_config
+
+    cfg = compose_config(["experiment.methods=[active_straddle,active_balanced]"])
+    make = acquisition_factory(cfg["acquisition"], ExperimentConfig(d_max=0.05))
+    for m in ("active_straddle", "active_balanced"):
+        check_method_acquisition(m, build_method(m, cfg["methods"]), make)
+    own = make(KnownPosterior(), build_method("active_straddle", cfg["methods"]).acquisition)
+    assert type(own) is TrajectoryStraddle and own.kappa == 1.96 and own.d_max == 0.05  # d_max from the experiment
+    # max_t (1.96 sigma_t - |mu_t - 0.05|) by hand, maximised
+    want = max(1.96 * 0.02 - 0.03, 1.96 * 0.05 - 0.0, 1.96 * 0.01 - 0.02)
+    assert own(A).item() == pytest.approx(want)
+    paper = make(KnownPosterior(), build_method("active_balanced", cfg["methods"]).acquisition)
+    assert type(paper) is DiscountedMaxUCB and paper.c == 0.1
+
+
+@pytest.mark.parametrize("override,match", [
+    ("+methods.active_straddle.acquisition.c=0.1", r"methods.active_straddle.acquisition: \['c'\] is not a parameter "
+                                                   r"of active.acquisition.TrajectoryStraddle"),
+    ("methods.active_straddle.acquisition._target_=no_such.Acq", r"methods.active_straddle.acquisition._target_ = "
+                                                                  r"'no_such.Acq' cannot be imported"),
+])
+def test_a_methods_own_acquisition_spec_is_checked_before_compute(override, match):
+    from active.experiment import ExperimentConfig
+    from active.loop import acquisition_factory, check_method_acquisition
+    from active.methods import build_method
+    from active.run import compose_config
+
+    cfg = compose_config([override])
+    make = acquisition_factory(cfg["acquisition"], ExperimentConfig())
+    with pytest.raises(ValueError, match=match):
+        check_method_acquisition("active_straddle", build_method("active_straddle", cfg["methods"]), make)
 
 
 def test_old_form_key_is_refused_naming_the_replacement():
