@@ -611,7 +611,7 @@ def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):
 
     A method whose ``acquisition:`` names a ``_target_`` brings its own spec (e.g. ``active_straddle``), built
     the same way instead of the configured one, so that one run can compare acquisitions side by side."""
-    from hydra.utils import get_class, instantiate
+    from hydra.utils import instantiate
 
     from .acquisition import _check_gamma
 
@@ -621,13 +621,7 @@ def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):
     if "form" in cfg:
         raise ValueError(f"acquisition.form = {cfg['form']!r} was removed: the paper's Eq. 1 is acquisition=alpha "
                          f"(the default), its LCB reading acquisition=lcb (active.acquisition.DiscountedMaxLCB)")
-    try:
-        cls = get_class(cfg["_target_"])
-    except Exception as e:
-        from .acquisition import ACQUISITIONS
-
-        raise ValueError(f"acquisition._target_ = {cfg['_target_']!r} cannot be imported ({e}); built in: "
-                         f"{sorted(c.__module__ + '.' + c.__name__ for c in ACQUISITIONS.values())}") from None
+    cls = acquisition_class(cfg["_target_"], "acquisition")
     if "gamma" in cfg:
         _check_gamma(cfg["gamma"])
     cfg["_partial_"] = True  # a spec without it (a config written before the group existed) is still a partial
@@ -656,27 +650,33 @@ def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):
     return make
 
 
+def acquisition_class(target: str, where: str) -> type:
+    """The class an acquisition spec's ``_target_`` names, or an error naming ``where`` and the built-in ones."""
+    from hydra.utils import get_class
+
+    try:
+        return get_class(target)
+    except Exception as e:
+        from .acquisition import ACQUISITIONS
+
+        raise ValueError(f"{where}._target_ = {target!r} cannot be imported ({e}); built in: "
+                         f"{sorted(c.__module__ + '.' + c.__name__ for c in ACQUISITIONS.values())}") from None
+
+
 def check_method_acquisition(name: str, method: Any, make_acquisition: Any) -> None:
     """Refuse, before compute, a method's acquisition keyword that no acquisition takes (a typo would
     otherwise do nothing). A keyword of another built-in acquisition (the paper's ``c`` with
     ``acquisition=variance``) is allowed: the configured one ignores it, as documented. A method's own spec
     (``acquisition._target_``) must import and take each of its keywords."""
-    from hydra.utils import get_class
-
     from .acquisition import ACQUISITIONS
 
     spec = dict(getattr(method, "acquisition", None) or {})
     if "_target_" in spec:  # the method's own acquisition: its keywords must be its class's
-        try:
-            cls = get_class(spec["_target_"])
-        except Exception as e:
-            raise ValueError(f"methods.{name}.acquisition._target_ = {spec['_target_']!r} cannot be imported ({e}); "
-                             f"built in: {sorted(c.__module__ + '.' + c.__name__ for c in ACQUISITIONS.values())}") \
-                from None
-        unknown = sorted(set(spec) - {"_target_", "_partial_"} - (_keywords(cls) - {"model"}))
+        takes = _keywords(acquisition_class(spec["_target_"], f"methods.{name}.acquisition")) - {"model"}
+        unknown = sorted(set(spec) - {"_target_", "_partial_"} - takes)
         if unknown:
             raise ValueError(f"methods.{name}.acquisition: {unknown} is not a parameter of {spec['_target_']}; "
-                             f"it takes {sorted(_keywords(cls) - {'model'})}")
+                             f"it takes {sorted(takes)}")
         return
     kwargs = set(spec)
     built_in = set().union(*(_keywords(cls) for cls in ACQUISITIONS.values()))
