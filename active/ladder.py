@@ -197,7 +197,20 @@ def ceiling_dataset(world, pool, exp, executor, n_train: int, seed: int, batch: 
     kept = [(i, r) for i, r in enumerate(results) if not r.unstable]  # as _stack_steps
     return {"s": s, "a": a, "s_next": s2, "trajectory": np.array([i for i, r in kept for _ in r.steps], dtype=int),
             "category": np.array([r.category for r in results]),
-            "train_plans_found": np.array(sum(p is not None for p in plans))}
+            "train_plans_found": np.array(sum(p is not None for p in plans)),
+            "plant_on_contact": np.array(world.plant_on_contact)}
+
+
+def check_ceiling_data(path: Path, on_contact: str) -> None:
+    """Refuse a saved ceiling set made under another ``world.plant.on_contact``: a set made with ``stop`` lacks
+    the stuck records that ``stuck`` adds (s' = s for each action a caught cup never made), so its MDE would
+    silently be another one. Files saved before session 33 record nothing and are taken as they are."""
+    with np.load(path) as f:
+        made = str(f["plant_on_contact"]) if "plant_on_contact" in f.files else None
+    if made is not None and made != on_contact:
+        raise ValueError(f"--ceiling-data {path}: made with world.plant.on_contact={made}, but the run has "
+                         f"world.plant.on_contact={on_contact}; pass world.plant.on_contact={made} or use a set made "
+                         f"with {on_contact}")
 
 
 def ceiling_subset(data: dict, k: int) -> dict:
@@ -210,8 +223,9 @@ def ceiling_subset(data: dict, k: int) -> dict:
     ids = np.r_[np.arange(k // 2), n // 2 + np.arange(k - k // 2)]
     rows = np.isin(data["trajectory"], ids)
     renum = np.searchsorted(ids, data["trajectory"][rows])
-    return {"s": data["s"][rows], "a": data["a"][rows], "s_next": data["s_next"][rows], "trajectory": renum,
-            "category": data["category"][ids], "train_plans_found": np.array(-1)}  # unknown for a subset
+    sub = {"s": data["s"][rows], "a": data["a"][rows], "s_next": data["s_next"][rows], "trajectory": renum,
+           "category": data["category"][ids], "train_plans_found": np.array(-1)}  # unknown for a subset
+    return sub | ({"plant_on_contact": data["plant_on_contact"]} if "plant_on_contact" in data else {})
 
 
 def ceiling(world, dyn, pool, exp, executor, make_mde, n_train: int, n: int, seed: int,
@@ -233,6 +247,7 @@ def ceiling(world, dyn, pool, exp, executor, make_mde, n_train: int, n: int, see
     if reuse:
         if data_path is None or not Path(data_path).exists():
             raise FileNotFoundError(f"--ceiling-data {data_path}: no such file")
+        check_ceiling_data(Path(data_path), world.plant_on_contact)
         with np.load(data_path) as f:
             data = {k: f[k] for k in f.files}
         if n_train:
@@ -522,9 +537,17 @@ def main(argv: Sequence[str] | None = None) -> None:
     except ValueError as err:
         raise SystemExit(str(err)) from None
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    from sim.world import WorldConfig
+
     from .run import compose_config
 
     cfg = compose_config(args.overrides)
+    on_contact = WorldConfig.from_mapping(cfg["world"]).plant_on_contact
+    for f in args.ceiling_data or []:
+        try:
+            check_ceiling_data(f, on_contact)
+        except ValueError as err:
+            raise SystemExit(str(err)) from None
     result = run_ladder(cfg, args.out, args.rungs, args.thetas, args.hold, args.problems,
                         args.ceiling_trajectories, slots=args.slots, progress=bool(cfg.get("progress", True)),
                         ceiling_data=args.ceiling_data, model_seeds=args.model_seeds, ceiling_seeds=args.ceiling_seeds)

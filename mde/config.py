@@ -60,7 +60,8 @@ class MDEConfig:
     #: an outputscale near 0 (BENCHMARKS.md, sessions 15-17 and 22); a prior keeps them in range
     #: softly, where ``lengthscale_max`` cuts them off.
     hyperparameter_priors: str = "none"
-    #: Most-likely heteroscedastic GP (True) or a homoscedastic GP (False, for ablation).
+    #: Most-likely heteroscedastic GP (True, the paper's) or a homoscedastic GP (False: one noise level; with
+    #: ``label_max`` the pouring task's default, configs/mde/default.yaml).
     heteroscedastic: bool = True
     #: "none": raw (s, a) features as in the paper; "normalize": BoTorch ``Normalize`` with the
     #: bounds of the training inputs.

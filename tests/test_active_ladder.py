@@ -40,6 +40,10 @@ def test_tiny_ladder_writes_every_rung(tmp_path, capsys):
     assert "ceiling.success" in out and "wrote" in out and "held out by trajectory" in out
     # the saved training transitions are reused without simulating: same data, same MDE diagnostics
     data = tmp_path / "ladder" / "ceiling_train.npz"
+    import numpy as np
+
+    with np.load(data) as f:
+        assert str(f["plant_on_contact"]) == "stuck"  # the world it was made in (checked when reused)
     main(["--out", str(tmp_path / "again"), "--rungs", "ceiling", "--problems", "2", "--ceiling-data", str(data),
           *overrides])
     again = json.loads((tmp_path / "again" / "ladder.json").read_text())["ceiling"]
@@ -116,6 +120,8 @@ def test_ceiling_subset_keeps_half_plans_half_random_actions():
     np.testing.assert_array_equal(r["trajectory"], [0, 0, 1, 2, 3, 3])
     np.testing.assert_array_equal(r["category"], list("abef"))
     np.testing.assert_array_equal(r["s"][:, 0], [0, 1, 2, 6, 7, 8])
+    assert "plant_on_contact" not in r  # nothing recorded, nothing invented
+    assert str(ceiling_subset({**d, "plant_on_contact": np.array("stuck")}, 4)["plant_on_contact"]) == "stuck"
     with pytest.raises(ValueError, match=r"--ceiling-trajectories 9 with --ceiling-data: allowed 2..8"):
         ceiling_subset(d, 9)
     with pytest.raises(SystemExit, match=r"--ceiling-trajectories 1: allowed >= 2"):
@@ -156,3 +162,23 @@ def test_ceiling_seeds_and_files_are_checked_before_compute(tmp_path):
     with pytest.raises(SystemExit, match=r"--ceiling-data .*missing.npz: no such file"):
         main(["--out", str(tmp_path / "x"), "--ceiling-data", str(tmp_path / "missing.npz")])
     assert not (tmp_path / "x").exists()
+
+
+def test_a_saved_ceiling_set_made_under_another_plant_contact_is_refused(tmp_path):
+    """A set made with ``world.plant.on_contact=stop`` lacks the records ``stuck`` adds: refused before any compute,
+    naming both settings; a set that records nothing (saved before session 33) is taken as it is."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from active.ladder import check_ceiling_data
+
+    stop_set = Path(__file__).parents[1] / "benchmarks" / "ceiling_sets" / "s28_stop_seed0.npz"
+    with pytest.raises(SystemExit, match=r"made with world.plant.on_contact=stop, but the run has "
+                                         r"world.plant.on_contact=stuck"):
+        main(["--out", str(tmp_path / "x"), "--rungs", "ceiling", "--ceiling-data", str(stop_set)])
+    assert not (tmp_path / "x").exists()
+    check_ceiling_data(stop_set, "stop")
+    legacy = tmp_path / "legacy.npz"
+    np.savez(legacy, category=np.array(["other"]))
+    check_ceiling_data(legacy, "stuck")

@@ -288,7 +288,7 @@ def test_a_key_added_later_keeps_the_digest_at_its_off_value(group, key, off, va
     (session 18), mde.hyperparameter_priors and experiment.fallback (session 23): the off value is the behaviour
     before the key existed, so a run directory written then keeps its digest; any other value is another
     configuration."""
-    new = compose_config(["experiment=tiny"])
+    new = compose_config(["experiment=tiny", f"{group}.{key}={'null' if off is None else off}"])
     assert new[group][key] == off
     old = {**new, group: {k: v for k, v in new[group].items() if k != key}}
     assert config_digest(old) == config_digest(new)
@@ -343,16 +343,20 @@ def test_a_method_spec_enters_the_digest_only_when_it_differs_from_what_runs_had
         config_digest(base)  # tiny runs active_balanced and random_actions only
 
 
-def test_mde_homoscedastic_option_is_the_default_mde_with_two_fields_changed():
-    """``mde=homoscedastic`` (session 31): the default MDE with one noise level per skill and labels capped at 0.1;
-    every other field as ``mde=default``; the same run configuration (digest) as the two overrides spelled out."""
+def test_mde_heteroscedastic_option_is_the_default_mde_with_two_fields_changed():
+    """The default MDE (session 33) is homoscedastic with labels capped at 0.1; ``mde=heteroscedastic`` is the
+    paper's GP: every other field as ``mde=default``, the same run configuration (digest) as the two overrides
+    spelled out. ``mde=homoscedastic`` (session 31's name) is the default itself."""
     from hydra.utils import instantiate
 
-    base, homo = compose_config(["experiment=tiny"]), compose_config(["experiment=tiny", "mde=homoscedastic"])
-    changed = {k for k in base["mde"] if base["mde"][k] != homo["mde"].get(k)}
-    assert changed == {"heteroscedastic", "label_max"} and set(homo["mde"]) == set(base["mde"])
-    assert (homo["mde"]["heteroscedastic"], homo["mde"]["label_max"]) == (False, 0.1)
-    spelled = compose_config(["experiment=tiny", "mde.heteroscedastic=false", "mde.label_max=0.1"])
-    assert config_digest(homo) == config_digest(spelled) != config_digest(base)
-    mde = instantiate(homo["mde"], _convert_="all")
-    assert mde.config.heteroscedastic is False and mde.config.label_max == 0.1
+    base, hetero = compose_config(["experiment=tiny"]), compose_config(["experiment=tiny", "mde=heteroscedastic"])
+    assert (base["mde"]["heteroscedastic"], base["mde"]["label_max"]) == (False, 0.1)
+    changed = {k for k in base["mde"] if base["mde"][k] != hetero["mde"].get(k)}
+    assert changed == {"heteroscedastic", "label_max"} and set(hetero["mde"]) == set(base["mde"])
+    assert (hetero["mde"]["heteroscedastic"], hetero["mde"]["label_max"]) == (True, None)
+    spelled = compose_config(["experiment=tiny", "mde.heteroscedastic=true", "mde.label_max=null"])
+    assert config_digest(hetero) == config_digest(spelled) != config_digest(base)
+    assert config_digest(compose_config(["experiment=tiny", "mde=homoscedastic"])) == config_digest(base)
+    mde = instantiate(hetero["mde"], _convert_="all")
+    assert mde.config.heteroscedastic is True and mde.config.label_max is None
+    assert instantiate(base["mde"], _convert_="all").config.heteroscedastic is False

@@ -58,7 +58,8 @@ def test_pour_from_above_the_leaves_spills_more_in_target_world(runs):
 def test_path_through_a_leaf_is_stuck(runs):
     tgt, src = runs["target"][3], runs["source"][3]
     assert tgt.stuck and tgt.stuck_on == "plant" and tgt.category == "stuck_in_plant"
-    assert len(tgt.steps) == 1 and tgt.steps[0].stuck  # the pour after it never runs
+    assert len(tgt.steps) == 2 and tgt.steps[0].stuck  # the pour after it never runs: under the default
+    np.testing.assert_array_equal(tgt.steps[1].s_next, tgt.steps[1].s)  # on_contact "stuck", tried without effect
     assert tgt.states[-1, 0] > 0.2  # stopped at contact, short of x = 0.15
     assert not src.stuck and len(src.steps) == 2
 
@@ -172,7 +173,7 @@ def test_plant_on_contact_hold_blocks_only_that_action(cfg):
 
     from sim.skills import Obstacles, cup_boundary, plan_schedule
 
-    assert cfg.plant_on_contact == "stop"
+    assert cfg.plant_on_contact == "stuck"  # the default (session 33): schedules as "stop"
     hold = dataclasses.replace(cfg, plant={**cfg.plant, "on_contact": "hold"})
     obst = Obstacles(cfg.obstacle_bodies("target"), np.full(2, 0.03), np.full(2, 0.57))
     start, acts = np.array([0.42, 0.24, 0.0]), np.array([move(0.15, 0.24), move(0.42, 0.24), pour(0.5, 0.2)])
@@ -196,14 +197,15 @@ def test_plant_on_contact_stuck_records_the_actions_left_without_effect(cfg, run
     step per action the plant kept the cup from, with s' = s; a trajectory the plant did not stop is unchanged."""
     import dataclasses
 
-    ex = PouringExecutor(dataclasses.replace(cfg, plant={**cfg.plant, "on_contact": "stuck"}))
+    assert cfg.plant_on_contact == "stuck"  # the default: ``runs`` holds its trajectories
+    ex = PouringExecutor(dataclasses.replace(cfg, plant={**cfg.plant, "on_contact": "stop"}))
     try:
         got = ex.run("target", np.array([SCRIPTS[3][0], SCRIPTS[1][0]]), [SCRIPTS[3][1], SCRIPTS[1][1]],
                      goals=[0.5, 0.5], slots=[3, 1])
     finally:
         ex.close()
-    stop_through_leaf, stop_clear = runs["target"][3], runs["target"][1]
-    through, clear = got
+    stop_through_leaf, stop_clear = got
+    through, clear = runs["target"][3], runs["target"][1]
     assert stop_through_leaf.category == through.category == "stuck_in_plant"
     assert (len(stop_through_leaf.steps), len(through.steps)) == (1, 2)
     np.testing.assert_array_equal(through.states[:2], stop_through_leaf.states)
