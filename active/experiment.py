@@ -33,7 +33,7 @@ class ExperimentConfig:
     beta_switch_iteration: int = 4
     beta_test: float = 2.0
     calibration_trajectories: int = 8
-    planner_propagation_budget: int = 3000  # per candidate: the deterministic budget
+    planner_propagation_budget: int = 10000  # per candidate: the deterministic budget (the paper's)
     planner_time_budget: float = 30.0  # s per candidate: a safety net only (wall clock is not reproducible)
     #: the planner's model knows the source world's static obstacles (target cup, tank walls) and
     #: predicts moves / pours that hit them as stuck (dynamics.ContactAwareDynamics); the plant stays unknown
