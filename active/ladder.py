@@ -19,7 +19,7 @@ dynamics model (the same config composition as ``python -m active.run``, overrid
     python -m active.ladder --out outputs/ladder_stretch +world.sim.stretch_relax=0.02
     python -m active.ladder --out DIR --rungs source_model_only ceiling experiment.plan_goal_tol=0.02
     python -m active.ladder --out DIR --rungs source_model_only target_model_only --model-seeds 0 1 2
-    python -m active.ladder --out DIR --rungs ceiling --ceiling-data benchmarks/ceiling_train_s15_512.npz \
+    python -m active.ladder --out DIR --rungs ceiling --ceiling-data benchmarks/results/ceiling_train_s15_512.npz \
         --ceiling-trajectories 256 -- experiment.planner_propagation_budget=30000   # a saved set, or part of it
     python -m active.ladder --out DIR --rungs ceiling --ceiling-seeds 0 1 2      # three training sets: mean, range
 

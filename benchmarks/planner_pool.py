@@ -1,5 +1,5 @@
 """Planning in worker processes vs in-process, on the experiment's own batches:
-``python -m benchmarks.planner_pool [--workers 2] [--mde CHECKPOINT] [--out benchmarks/planner_pool.json] [overrides]``.
+``python -m benchmarks.planner_pool [--workers 2] [--mde CHECKPOINT] [--out benchmarks/results/planner_pool.json] [overrides]``.
 
 Why: planning is the largest cost of ``python -m active.run`` and every planner run is
 single-threaded; :class:`planner.pool.PlanPool` spreads a batch over processes. This measures

@@ -1,7 +1,7 @@
 """Cost of differentiating a whole pour, agreement with the production solver, and a refinement run.
 
     python -m benchmarks.sim_diff [--out bench_diff.json] [--skip-refine] [--refine-steps 4]
-    python -m benchmarks.sim_diff --partial-agreement 16 --out benchmarks/diff_partial_agreement.json
+    python -m benchmarks.sim_diff --partial-agreement 16 --out benchmarks/results/diff_partial_agreement.json
 
 Timing/memory: a default-resolution pour (dx = 0.01, theta = 1.8, hold = 0.5 from (0.31, 0.14),
 5.25 s = 13125 substeps) for B = 1 and B = 8 and several checkpoint intervals K (including no

@@ -1,7 +1,7 @@
 """Wall time to execute a batch of target-world trajectories, with the share per stage, and a
 resolution check of a reference pour.
 
-    python -m benchmarks.sim_execute [--n 32] [--actions 6] [--out benchmarks/execute.json] [--resolution]
+    python -m benchmarks.sim_execute [--n 32] [--actions 6] [--out benchmarks/results/execute.json] [--resolution]
     python -m benchmarks.sim_execute --skip-batch --spread --spread-dx 0.01 0.005 0.0025 --arch gpu
 """
 

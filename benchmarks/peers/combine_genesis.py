@@ -1,6 +1,6 @@
 """Combine the per-run JSONs of benchmarks/peers/genesis.sh into one result and print a table.
 
-    python benchmarks/peers/combine_genesis.py --raw DIR --out benchmarks/peers_genesis.json
+    python benchmarks/peers/combine_genesis.py --raw DIR --out benchmarks/results/peers_genesis.json
 
 Per (dx, B): the best (highest particle-substeps/s) of the rounds of each solver, every round's
 figure, the ratio ours / genesis, both front curves (from the best runs) and their mean relative

@@ -5,7 +5,7 @@
 #
 #   bash benchmarks/peers/genesis.sh [--sizes "0.01 0.005"] [--arch cpu|gpu] [--threads 2]
 #        [--steps 0] [--envs "1"] [--rounds 2] [--batch-steps 300] [--max-particles 200000]
-#        [--out benchmarks/peers_genesis.json]
+#        [--out benchmarks/results/peers_genesis.json]
 #
 # Genesis pins its own Taichi fork (Quadrants) and many heavy packages, so it is kept out of the
 # project's dependencies: it lives in its own virtual environment, .cache/peers/genesis-venv (made
@@ -25,7 +25,7 @@
 #                   substeps (their front is env 0's, the same scene as B = 1) and are skipped where
 #                   B * particles > --max-particles
 #   --rounds R      runs of each solver, alternating ours, genesis, ours, genesis, ...; best is kept
-#   --out FILE      combined JSON (default benchmarks/peers_genesis.json); per-run JSONs and logs go
+#   --out FILE      combined JSON (default benchmarks/results/peers_genesis.json); per-run JSONs and logs go
 #                   to .cache/peers/genesis-runs/<time>/
 set -euo pipefail
 
@@ -43,7 +43,7 @@ ENVS="1"
 ROUNDS=2
 BATCH_STEPS=300
 MAX_PARTICLES=""
-OUT="$ROOT/benchmarks/peers_genesis.json"
+OUT="$ROOT/benchmarks/results/peers_genesis.json"
 CMDLINE="bash benchmarks/peers/genesis.sh $*"
 
 while [[ $# -gt 0 ]]; do

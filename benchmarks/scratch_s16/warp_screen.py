@@ -1,5 +1,5 @@
 """Scratch (session 16): held-out admission (5-fold by trajectory) of the test precondition, plain vs warped MDE.
-python benchmarks/scratch_s16/warp_screen.py benchmarks/ceiling_train_s15_512.npz 128 256 512"""
+python benchmarks/scratch_s16/warp_screen.py benchmarks/results/ceiling_train_s15_512.npz 128 256 512"""
 import sys, time, warnings, json
 import numpy as np, torch
 warnings.filterwarnings("ignore")

@@ -1,4 +1,4 @@
-# Scratch probe of session 27 (not part of the package; inputs: benchmarks/partial_pours_s27_goal06.json, the
+# Scratch probe of session 27 (not part of the package; inputs: benchmarks/results/partial_pours_s27_goal06.json, the
 # shipped source data and session 26's 200-trajectory run under /work/runs/s26_200traj: edit RUN). Run from the
 # repo root with PYTHONPATH=.
 """The band's labels: by place and tilt in the take-apart, in the methods' own data, and the model's predicted spill."""
@@ -16,7 +16,7 @@ from sim.world import WorldConfig
 from task import state_distance
 
 RUN = "/work/runs/s26_200traj"
-r = json.load(open("benchmarks/partial_pours_s27_goal06.json"))
+r = json.load(open("benchmarks/results/partial_pours_s27_goal06.json"))
 P = r["pours"]
 
 
