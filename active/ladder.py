@@ -247,7 +247,6 @@ def ceiling(world, dyn, pool, exp, executor, make_mde, n_train: int, n: int, see
     if reuse:
         if data_path is None or not Path(data_path).exists():
             raise FileNotFoundError(f"--ceiling-data {data_path}: no such file")
-        check_ceiling_data(Path(data_path), world.plant_on_contact)
         with np.load(data_path) as f:
             data = {k: f[k] for k in f.files}
         if n_train:
@@ -354,6 +353,10 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
     t_start = time.perf_counter()
     exp = ExperimentConfig.from_mapping(cfg["experiment"])
     world = WorldConfig.from_mapping(cfg["world"])
+    if "ceiling" in rungs:  # before any compute, as the seeds and files above
+        for _, data_file, reuse in ceiling_runs:
+            if reuse:
+                check_ceiling_data(data_file, world.plant_on_contact)
     planner_cfg = build_planner_config(world, cfg["planner"], exp)
     workers = planner_workers(cfg["planner"])
     out.mkdir(parents=True, exist_ok=True)
