@@ -14,6 +14,8 @@ killed lockstep run resumes each (method, seed) from its own last saved iteratio
 
 from __future__ import annotations
 
+import logging
+import time
 from typing import Sequence
 
 from tqdm.auto import tqdm
@@ -22,6 +24,18 @@ from planner.pool import PlanPool
 from sim.execute import PouringExecutor
 
 from .loop import MethodRun, PlanNeed, SimNeed, execute_needs
+
+log = logging.getLogger(__name__)
+
+
+def round_line(it: int, iterations: int, n_runs: int, seconds: float, mean_seconds: float) -> str:
+    """The log line after round ``it`` (0-based): its time and the time left at this process's mean pace, so that a
+    run of hours (the paper protocol) says in its log when it will end, with or without the progress bar."""
+    left = iterations - it - 1
+    eta = left * mean_seconds
+    when = f"{eta / 3600:.1f} h" if eta >= 5400 else f"{eta / 60:.0f} min"
+    tail = f"; {left} round(s) left, about {when} at this pace" if left else "; all rounds done"
+    return f"lockstep round {it + 1}/{iterations}: {n_runs} run(s) in {seconds:.0f} s{tail}"
 
 
 def run_lockstep(runs: Sequence[MethodRun], pool: PlanPool, executor: PouringExecutor, progress: bool = True) -> None:
@@ -38,8 +52,10 @@ def run_lockstep(runs: Sequence[MethodRun], pool: PlanPool, executor: PouringExe
     first = min(r.completed for r in runs)
     bar = tqdm(range(first, iterations), disable=not progress, desc=f"lockstep: {len(runs)} runs", unit="round",
                initial=first, total=iterations)
+    times: list[float] = []
     for it in bar:
         pool.start()  # worker start-up (first round only) is not planning time
+        t0 = time.perf_counter()
         steps = {k: r.iteration_steps(it) for k, r in enumerate(runs) if r.completed == it}
         pending: dict[int, PlanNeed | SimNeed] = {}
         rows: dict[int, dict] = {}
@@ -65,3 +81,5 @@ def run_lockstep(runs: Sequence[MethodRun], pool: PlanPool, executor: PouringExe
                 advance(k, res)
         for k in steps:
             runs[k].finish_iteration(it, rows[k])
+        times.append(time.perf_counter() - t0)
+        log.info(round_line(it, iterations, len(steps), times[-1], sum(times) / len(times)))
