@@ -4,12 +4,12 @@ Physics (Hu et al. 2018, MLS-MPM; the J-based fluid of Taichi's mpm88): APIC tra
 B-splines, pressure p = K (1 - J) with bulk modulus K = rho c^2, explicit substeps bounded by the
 acoustic CFL condition (``SimConfig.dt_max``).
 
-Batching: B independent environments share one set of fields with a leading environment axis and
-one fused kernel launch per substep (clear grid, body update + particle-to-grid, grid update,
-grid-to-particle run as consecutive offloaded loops). On the CPU, particle-to-grid is env-serial (each
-environment scatters in a fixed particle order, in parallel across environments), so runs are bit
-reproducible and one environment's motion cannot change another's numbers; on the GPU it scatters
-with atomics over all particles.
+Batching: B independent environments share one set of fields with a leading environment axis. On the
+CPU one kernel launch advances every running environment by many substeps, one task per environment
+(clear grid, body update + particle-to-grid, grid update, grid-to-particle, in a fixed particle order;
+environments in parallel across threads), so runs are bit reproducible and one environment's motion
+cannot change another's numbers. On the GPU one launch per substep runs the stages as consecutive
+offloaded loops, in parallel over grid rows and particles, and particle-to-grid scatters with atomics.
 
 Colliders: tank walls are half-planes; bodies are kinematic rigid bodies (pose + linear and angular
 velocity, prescribed by a controller) made of boxes, capsules and ellipses (2D). Water-wall contact
@@ -37,6 +37,8 @@ from .scene import SHAPE_KINDS, EnvSpec, sample_water
 log = logging.getLogger(__name__)
 
 _WALL = -1  # closest-feature index for the tank walls
+#: CPU: particles per environment above which fewer environments than threads run staged (``MPMSolver.step``)
+_SPLIT_ENV_PARTICLES = 4096
 #: m added to every collider's culling bounds, so that float32 rounding never culls a point inside a collider
 _CULL_MARGIN = 1e-3
 
@@ -66,6 +68,21 @@ class MPMSolver:
         self.NB, self.NS = cfg.max_bodies, cfg.max_shapes
         self.res = cfg.res
         self.serial_p2g = bool(cfg.deterministic and self.arch == "cpu")
+        # CPU execution (deterministic): one task runs whole substeps of one environment (grid phase, then
+        # grid to particle), ``n`` of them per launch (``step``), because on this class of machine the
+        # parallelism of a launch of ~1 ms was lost: Taichi 1.7 compiles a top-level CPU range-for into one
+        # contiguous block per thread of at least 512 iterations (its make_cpu_multithreaded_range_for
+        # pass), so a loop over B < 1024 environments ran on one thread, and the other thread of a short
+        # loop often woke too late to take its block (BENCHMARKS.md, session 34). The loops run over
+        # threads x blocks instead, each block exactly one thread's, holding the running environments
+        # t, t + T, t + 2T, ... (interleaved, so that long trajectories at one end of a batch do not all land
+        # on one thread). Scheduling only: every environment's arithmetic, and so every result, is the
+        # same (tests/test_sim_solver.py).
+        self.threads = int(ti.lang.impl.current_cfg().cpu_max_num_threads) if self.arch == "cpu" else 1
+        self.envs_per_thread = -(-self.B // self.threads)
+        self._env_block = max(self.envs_per_thread, 512)
+        self._particle_block = max(self.envs_per_thread * self.N, 512)
+        self._n_running = self.B
         self.p_vol = cfg.dx**dim / cfg.ppc
         self.p_mass = cfg.rho * self.p_vol
         self.bulk = cfg.rho * cfg.sound_speed**2
@@ -84,7 +101,8 @@ class MPMSolver:
         self.nan_flag = ti.field(ti.i32)
         self.pinned = ti.field(ti.i32)
         self.active = ti.field(ti.i32)  # 0: environment frozen (costs nothing, state kept as it is)
-        fb.dense(ti.i, self.B).place(self.n_part, self.nan_flag, self.pinned, self.active)
+        self.run_order = ti.field(ti.i32)  # the running environments, in index order (CPU loops)
+        fb.dense(ti.i, self.B).place(self.n_part, self.nan_flag, self.pinned, self.active, self.run_order)
         # grid nodes each environment's last particle-to-grid wrote: [lo, hi] per axis
         self.box_cur = ti.Vector.field(dim, ti.i32)
         self.box_cur_hi = ti.Vector.field(dim, ti.i32)
@@ -192,7 +210,7 @@ class MPMSolver:
         self.n_part.from_numpy(n_part)
         self.nan_flag.fill(0)
         self.pinned.fill(0)
-        self.active.fill(1)
+        self.set_active(np.ones(self.B, bool))
         self.shape_kind.from_numpy(kind)
         self.shape_body.from_numpy(sbody)
         self.shape_c.from_numpy(sc)
@@ -304,16 +322,32 @@ class MPMSolver:
         if mask.shape != (self.B,):
             raise ValueError(f"set_active: expected {self.B} booleans (one per environment), got shape {mask.shape}")
         self.active.from_numpy(mask.astype(np.int32))
+        running = np.flatnonzero(mask).astype(np.int32)
+        self._n_running = len(running)
+        self.run_order.from_numpy(np.concatenate([running, np.full(self.B - len(running), -1, np.int32)]))
 
     def active_mask(self) -> np.ndarray:
         """(B,) booleans: which environments are running (see ``set_active``)."""
         return self.active.to_numpy().astype(bool)
 
-    def step(self, n_substeps: int = 1) -> None:
-        """Advance every environment by ``n_substeps`` substeps of ``cfg.dt``."""
-        for _ in range(int(n_substeps)):
-            self._substep()
-        self.time += n_substeps * self.cfg.dt
+    def step(self, n_substeps: int = 1, staged: bool = False) -> None:
+        """Advance every environment by ``n_substeps`` substeps of ``cfg.dt``.
+
+        On the CPU (deterministic) one launch runs all of them, each environment's in one task
+        (``_advance_envs``); ``staged`` runs one launch per substep with one offloaded loop per stage
+        instead (``_substep``: the same results, bit for bit; for ``benchmarks.sim_profile``'s per-stage
+        times). The CPU also runs staged when fewer environments run than there are threads and each
+        holds more than ``_SPLIT_ENV_PARTICLES`` particles (a large 3D scene: its grid-to-particle
+        stage then splits over the threads). The GPU always runs staged, in parallel over particles
+        and grid rows."""
+        n = int(n_substeps)
+        if self.serial_p2g and not staged and (self._n_running >= self.threads or self.N <= _SPLIT_ENV_PARTICLES):
+            if n > 0 and self._n_running > 0:
+                self._advance_envs(n, self._n_running)
+        else:
+            for _ in range(n):
+                self._substep()
+        self.time += n * self.cfg.dt
 
     def sync(self) -> None:
         """Wait until every launched kernel has finished (GPU launches are asynchronous; for timing)."""
@@ -576,9 +610,9 @@ class MPMSolver:
 
     @ti.kernel
     def _substep(self):
-        dim = ti.static(self.dim)
-        dx = ti.static(self.cfg.dx)
-        dt = ti.static(self.cfg.dt)
+        """One substep of every running environment, one offloaded loop per stage (the GPU's way; on the
+        CPU ``step(staged=True)``, for per-stage times; ``_advance_envs`` runs the same per-environment
+        arithmetic)."""
         # 1. clear the nodes the last particle-to-grid wrote (everything else is zero already);
         # 2. move the kinematic bodies by their prescribed velocities (so grid update and G2P see this
         #    substep's collider poses), then particle to grid, which makes the box of the nodes it
@@ -586,20 +620,12 @@ class MPMSolver:
         # 3. grid update over that box: momentum to velocity, gravity, colliders.
         # Grid loops visit only the active box: an empty tank costs nothing.
         if ti.static(self.serial_p2g):
-            # CPU: one task per environment runs 1-3 (its grid stays in cache; the box is a running
-            # min / max, no atomics); environments spread over the threads
-            ti.loop_config(block_dim=1)
-            for b in range(self.B):
-                if self.active[b]:
-                    self._for_box_nodes(b, self._clear_node)
-                    self._begin_env(b)
-                    lo, hi = self.box_cur[b], self.box_cur_hi[b]
-                    for p in range(self.n_part[b]):
-                        base = self._p2g(b, p)
-                        lo = ti.min(lo, base)
-                        hi = ti.max(hi, base + 2)
-                    self.box_cur[b], self.box_cur_hi[b] = lo, hi
-                    self._for_box_nodes(b, self._update_node)
+            # CPU: one task per environment runs 1-3 (no atomics); environments interleaved over the
+            # threads (__init__)
+            for i in range(self.threads * self._env_block):
+                b = self._interleaved(i, self._env_block, 1)
+                if b >= 0 and self.active[ti.max(b, 0)]:  # Taichi's `and` evaluates both sides
+                    self._env_grid_phase(b)
         else:
             # GPU: each stage in parallel over rows (b, i) or particles; the box by atomics
             for b, i in ti.ndrange(self.B, self.res[0]):
@@ -617,59 +643,118 @@ class MPMSolver:
                 if self.active[b]:
                     self._for_active_nodes(b, i, self._update_node)
         # 4. grid to particle, advection, collider projection, safety clamp
-        for b, p in ti.ndrange(self.B, self.N):
-            if p < self.n_part[b] and self.active[b]:
-                Xp = self.x[b, p] / dx
-                base = ti.cast(Xp - 0.5, ti.i32)
-                fx = Xp - base
-                w = bspline_weights(fx)
-                new_v = ti.Vector.zero(ti.f32, dim)
-                new_C = ti.Matrix.zero(ti.f32, dim, dim)
-                mass_near = 0.0
-                for offset in ti.static(ti.grouped(ti.ndrange(*([3] * dim)))):
-                    dpos = offset - fx
-                    weight = 1.0
-                    for d in ti.static(range(dim)):
-                        weight *= w[offset[d]][d]
-                    gi = self._gidx(b, base + offset)
-                    g_v = self.grid_v[gi]
-                    if ti.static(self.cfg.volume_correction):
-                        mass_near += weight * self.grid_m[gi]
-                    new_v += weight * g_v
-                    new_C += 4.0 / dx * weight * g_v.outer_product(dpos)
-                xn = self.x[b, p] + dt * new_v
-                phi, idx = self._contact(b, xn)
-                if phi < 0:
-                    n, vc = self._normal_and_velocity(b, idx, xn)
-                    xn -= phi * n
-                    new_v = separate(new_v, vc, n, self.cfg.friction)
-                J = update_volume_ratio(self.J[b, p], new_C.trace(), mass_near, dt, ti.static(self.cfg.ppc * self.p_mass),
-                                        ti.static(min(dt / self.cfg.volume_relax, 1.0)),
-                                        self.cfg.volume_correction, self.cfg.tension,
-                                        self.stretch_rate)
-                bad = _not_finite(J)
-                for d in ti.static(range(dim)):
-                    bad = bad | _not_finite(xn[d]) | _not_finite(new_v[d])
-                if bad:  # park the particle so indices stay valid; the env is flagged
-                    self.nan_flag[b] = 1
-                    for d in ti.static(range(dim)):
-                        xn[d] = 0.5 * self.cfg.domain[d]
-                    new_v = ti.Vector.zero(ti.f32, dim)
-                    new_C = ti.Matrix.zero(ti.f32, dim, dim)
-                    J = 1.0
-                clamped = False
-                for d in ti.static(range(dim)):
-                    lo = dx
-                    hi = (self.res[d] - 2) * dx
-                    if xn[d] < lo or xn[d] > hi:
-                        clamped = True
-                        xn[d] = ti.math.clamp(xn[d], lo, hi)
-                if clamped:
-                    self.pinned[b] += 1
-                self.x[b, p] = xn
-                self.v[b, p] = new_v
-                self.C[b, p] = new_C
-                self.J[b, p] = J
+        if ti.static(self.arch == "cpu"):
+            for i in range(self.threads * self._particle_block):
+                b = self._interleaved(i, self._particle_block, self.N)
+                if b >= 0:  # nested: Taichi's `and` evaluates both sides
+                    p = i % self._particle_block % self.N
+                    if p < self.n_part[b] and self.active[b]:
+                        self._g2p(b, p)
+        else:
+            for b, p in ti.ndrange(self.B, self.N):
+                if p < self.n_part[b] and self.active[b]:
+                    self._g2p(b, p)
+
+    @ti.func
+    def _env_grid_phase(self, b):
+        """Stages 1-3 of a substep for environment b, serially: clear the nodes its last particle-to-grid
+        wrote, move its bodies, particle to grid (its box of written nodes a running min / max), grid update."""
+        self._for_box_nodes(b, self._clear_node)
+        self._begin_env(b)
+        lo, hi = self.box_cur[b], self.box_cur_hi[b]
+        for p in range(self.n_part[b]):
+            base = self._p2g(b, p)
+            lo = ti.min(lo, base)
+            hi = ti.max(hi, base + 2)
+        self.box_cur[b], self.box_cur_hi[b] = lo, hi
+        self._for_box_nodes(b, self._update_node)
+
+    @ti.kernel
+    def _advance_envs(self, n: ti.i32, n_running: ti.i32):
+        """CPU: ``n`` whole substeps of every running environment, one task per environment (its grid and
+        particles stay in cache), the running environments interleaved over the threads (``__init__``)."""
+        for i in range(self.threads * self._env_block):
+            t = i // self._env_block
+            k = i % self._env_block
+            j = k * self.threads + t
+            if k < self.envs_per_thread and j < n_running:
+                b = self.run_order[j]
+                for _ in range(n):
+                    self._env_grid_phase(b)
+                    for p in range(self.n_part[b]):
+                        self._g2p(b, p)
+
+    @ti.func
+    def _interleaved(self, i, block, per_env):
+        """The environment of CPU loop index i (-1: none): thread t's block of ``block`` indices holds
+        ``per_env`` consecutive indices of each of environments t, t + T, t + 2T, ..."""
+        t = i // block
+        k = i % block
+        b = -1
+        if k < self.envs_per_thread * per_env:
+            e = (k // per_env) * self.threads + t
+            if e < self.B:
+                b = e
+        return b
+
+    @ti.func
+    def _g2p(self, b, p):
+        """Grid to particle p of environment b: velocity and affine field, advection, collider
+        projection, volume ratio, NaN parking and the safety clamp."""
+        dim = ti.static(self.dim)
+        dx = ti.static(self.cfg.dx)
+        dt = ti.static(self.cfg.dt)
+        Xp = self.x[b, p] / dx
+        base = ti.cast(Xp - 0.5, ti.i32)
+        fx = Xp - base
+        w = bspline_weights(fx)
+        new_v = ti.Vector.zero(ti.f32, dim)
+        new_C = ti.Matrix.zero(ti.f32, dim, dim)
+        mass_near = 0.0
+        for offset in ti.static(ti.grouped(ti.ndrange(*([3] * dim)))):
+            dpos = offset - fx
+            weight = 1.0
+            for d in ti.static(range(dim)):
+                weight *= w[offset[d]][d]
+            gi = self._gidx(b, base + offset)
+            g_v = self.grid_v[gi]
+            if ti.static(self.cfg.volume_correction):
+                mass_near += weight * self.grid_m[gi]
+            new_v += weight * g_v
+            new_C += 4.0 / dx * weight * g_v.outer_product(dpos)
+        xn = self.x[b, p] + dt * new_v
+        phi, idx = self._contact(b, xn)
+        if phi < 0:
+            n, vc = self._normal_and_velocity(b, idx, xn)
+            xn -= phi * n
+            new_v = separate(new_v, vc, n, self.cfg.friction)
+        J = update_volume_ratio(self.J[b, p], new_C.trace(), mass_near, dt, ti.static(self.cfg.ppc * self.p_mass),
+                                ti.static(min(dt / self.cfg.volume_relax, 1.0)),
+                                self.cfg.volume_correction, self.cfg.tension,
+                                self.stretch_rate)
+        bad = _not_finite(J)
+        for d in ti.static(range(dim)):
+            bad = bad | _not_finite(xn[d]) | _not_finite(new_v[d])
+        if bad:  # park the particle so indices stay valid; the env is flagged
+            self.nan_flag[b] = 1
+            for d in ti.static(range(dim)):
+                xn[d] = 0.5 * self.cfg.domain[d]
+            new_v = ti.Vector.zero(ti.f32, dim)
+            new_C = ti.Matrix.zero(ti.f32, dim, dim)
+            J = 1.0
+        clamped = False
+        for d in ti.static(range(dim)):
+            lo = dx
+            hi = (self.res[d] - 2) * dx
+            if xn[d] < lo or xn[d] > hi:
+                clamped = True
+                xn[d] = ti.math.clamp(xn[d], lo, hi)
+        if clamped:
+            self.pinned[b] += 1
+        self.x[b, p] = xn
+        self.v[b, p] = new_v
+        self.C[b, p] = new_C
+        self.J[b, p] = J
 
     @ti.kernel
     def _count_regions(self, bodies: ti.types.ndarray(), lo: ti.types.ndarray(), hi: ti.types.ndarray(),
