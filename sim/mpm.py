@@ -37,8 +37,10 @@ from .scene import SHAPE_KINDS, EnvSpec, sample_water
 log = logging.getLogger(__name__)
 
 _WALL = -1  # closest-feature index for the tank walls
-#: CPU: particles per environment above which fewer environments than threads run staged (``MPMSolver.step``)
-_SPLIT_ENV_PARTICLES = 4096
+#: CPU: particles per environment above which fewer environments than threads run staged (``MPMSolver.step``).
+#: One 3D dam-break environment on 2 threads (BENCHMARKS.md, session 34): 16,000 particles 5.3-5.6e6
+#: particle-substeps/s whole-substep, 4.7-5.5e6 staged; 128,000 particles 6.0e6 against 7.0e6
+_SPLIT_ENV_PARTICLES = 32768
 #: m added to every collider's culling bounds, so that float32 rounding never culls a point inside a collider
 _CULL_MARGIN = 1e-3
 
@@ -643,14 +645,14 @@ class MPMSolver:
                 if self.active[b]:
                     self._for_active_nodes(b, i, self._update_node)
         # 4. grid to particle, advection, collider projection, safety clamp
-        if ti.static(self.arch == "cpu"):
+        if ti.static(self.arch == "cpu" and self.B >= self.threads):
             for i in range(self.threads * self._particle_block):
                 b = self._interleaved(i, self._particle_block, self.N)
                 if b >= 0:  # nested: Taichi's `and` evaluates both sides
                     p = i % self._particle_block % self.N
                     if p < self.n_part[b] and self.active[b]:
                         self._g2p(b, p)
-        else:
+        else:  # GPU, or fewer environments than CPU threads: contiguous runs of particles per thread
             for b, p in ti.ndrange(self.B, self.N):
                 if p < self.n_part[b] and self.active[b]:
                     self._g2p(b, p)
