@@ -62,8 +62,7 @@ def method_dirs(source: Path) -> list[Path]:
     """The method directories (holding ``results.csv``) under a run, seed or method directory."""
     if (source / "results.csv").is_file():
         return [source]
-    found = sorted(p.parent for p in source.glob("results.csv")) + sorted(p.parent for p in source.glob("*/results.csv"))
-    found += sorted(p.parent for p in source.glob("seed*/*/results.csv"))
+    found = [p.parent for p in source.glob("*/results.csv")] + [p.parent for p in source.glob("seed*/*/results.csv")]
     if not found:
         raise SystemExit(f"collect_csvs: no results.csv in or under {source} (a run, seed or method directory)")
     return sorted(set(found))

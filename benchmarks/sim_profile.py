@@ -47,8 +47,9 @@ def profile(world_name: str = "default", envs: int = 32, substeps: int = 400, ar
     solver = MPMSolver(world.sim_config(envs))
     solver.reset([world.scene("target", (0.40 + 0.002 * (b % 5), 0.20, 0.0)) for b in range(envs)])
     solver.set_body_velocity(0, np.tile([[-0.1, 0.0]], (envs, 1)), np.full(envs, 0.8))
+    per_tick = int(round(world.control_dt / solver.cfg.dt))  # substeps per control tick: one launch in sim.execute
     solver.step(50, staged=True)
-    solver.step(25)  # compile the production path too
+    solver.step(per_tick)  # compile the production path too
     ti.sync()
     ti.profiler.clear_kernel_profiler_info()
     t0 = time.perf_counter()
@@ -64,12 +65,13 @@ def profile(world_name: str = "default", envs: int = 32, substeps: int = 400, ar
             per_task[int(m.group(1))] = per_task.get(int(m.group(1)), 0.0) + rec.kernel_time
     names = STAGES_SERIAL if solver.serial_p2g else STAGES_PARALLEL
     n_particles = int(solver.particle_counts().sum())
-    # the production path: what sim.execute runs, one launch per control tick (25 substeps at the default dt)
+    # the production path: what sim.execute runs, one launch per control tick
+    ticks = -(-substeps // per_tick)
     t0 = time.perf_counter()
-    for _ in range(-(-substeps // 25)):
-        solver.step(25)
+    for _ in range(ticks):
+        solver.step(per_tick)
     ti.sync()
-    production = (time.perf_counter() - t0) / (25 * -(-substeps // 25))
+    production = (time.perf_counter() - t0) / (per_tick * ticks)
     solver.close()
     total = sum(per_task.values())
     rows = [{"stage": names[i] if i < len(names) else f"task {i}", "ms_per_substep": per_task[i] / substeps,
@@ -90,7 +92,7 @@ def table(result: dict) -> str:
     lines.append(f"{'kernels, total':55s} {result['kernel_ms_per_substep']:10.3f}")
     lines.append(f"wall {result['wall_ms_per_substep']:.3f} ms/substep, "
                  f"{result['particle_substeps_per_s'] / 1e6:.2f} M particle-substeps/s (staged: one launch per substep)")
-    lines.append(f"production path (sim.execute: 25 substeps per launch; CPU: whole substeps per environment) "
+    lines.append(f"production path (sim.execute: one launch per control tick; CPU: whole substeps per environment) "
                  f"{result['production_wall_ms_per_substep']:.3f} ms/substep, "
                  f"{result['production_particle_substeps_per_s'] / 1e6:.2f} M particle-substeps/s")
     return "\n".join(lines)

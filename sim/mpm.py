@@ -81,9 +81,8 @@ class MPMSolver:
         # on one thread). Scheduling only: every environment's arithmetic, and so every result, is the
         # same (tests/test_sim_solver.py).
         self.threads = int(ti.lang.impl.current_cfg().cpu_max_num_threads) if self.arch == "cpu" else 1
-        self.envs_per_thread = -(-self.B // self.threads)
-        self._env_block = max(self.envs_per_thread, 512)
-        self._particle_block = max(self.envs_per_thread * self.N, 512)
+        self._envs_per_thread = -(-self.B // self.threads)
+        self._env_block = max(self._envs_per_thread, 512)
         self._n_running = self.B
         self.p_vol = cfg.dx**dim / cfg.ppc
         self.p_mass = cfg.rho * self.p_vol
@@ -625,7 +624,7 @@ class MPMSolver:
             # CPU: one task per environment runs 1-3 (no atomics); environments interleaved over the
             # threads (__init__)
             for i in range(self.threads * self._env_block):
-                b = self._interleaved(i, self._env_block, 1)
+                b = self._slot(i)
                 if b >= 0 and self.active[ti.max(b, 0)]:  # Taichi's `and` evaluates both sides
                     self._env_grid_phase(b)
         else:
@@ -645,17 +644,9 @@ class MPMSolver:
                 if self.active[b]:
                     self._for_active_nodes(b, i, self._update_node)
         # 4. grid to particle, advection, collider projection, safety clamp
-        if ti.static(self.arch == "cpu" and self.B >= self.threads):
-            for i in range(self.threads * self._particle_block):
-                b = self._interleaved(i, self._particle_block, self.N)
-                if b >= 0:  # nested: Taichi's `and` evaluates both sides
-                    p = i % self._particle_block % self.N
-                    if p < self.n_part[b] and self.active[b]:
-                        self._g2p(b, p)
-        else:  # GPU, or fewer environments than CPU threads: contiguous runs of particles per thread
-            for b, p in ti.ndrange(self.B, self.N):
-                if p < self.n_part[b] and self.active[b]:
-                    self._g2p(b, p)
+        for b, p in ti.ndrange(self.B, self.N):
+            if p < self.n_part[b] and self.active[b]:
+                self._g2p(b, p)
 
     @ti.func
     def _env_grid_phase(self, b):
@@ -676,28 +667,26 @@ class MPMSolver:
         """CPU: ``n`` whole substeps of every running environment, one task per environment (its grid and
         particles stay in cache), the running environments interleaved over the threads (``__init__``)."""
         for i in range(self.threads * self._env_block):
-            t = i // self._env_block
-            k = i % self._env_block
-            j = k * self.threads + t
-            if k < self.envs_per_thread and j < n_running:
-                b = self.run_order[j]
+            j = self._slot(i)
+            if j >= 0 and j < n_running:
+                b = self.run_order[ti.max(j, 0)]  # Taichi's `and` evaluates both sides
                 for _ in range(n):
                     self._env_grid_phase(b)
                     for p in range(self.n_part[b]):
                         self._g2p(b, p)
 
     @ti.func
-    def _interleaved(self, i, block, per_env):
-        """The environment of CPU loop index i (-1: none): thread t's block of ``block`` indices holds
-        ``per_env`` consecutive indices of each of environments t, t + T, t + 2T, ..."""
-        t = i // block
-        k = i % block
-        b = -1
-        if k < self.envs_per_thread * per_env:
-            e = (k // per_env) * self.threads + t
+    def _slot(self, i):
+        """The slot (0 .. B - 1) of CPU loop index i over ``threads x _env_block``, or -1: thread t's block
+        holds slots t, t + T, t + 2T, ... (``__init__``)."""
+        t = i // self._env_block
+        k = i % self._env_block
+        j = -1
+        if k < self._envs_per_thread:
+            e = k * self.threads + t
             if e < self.B:
-                b = e
-        return b
+                j = e
+        return j
 
     @ti.func
     def _g2p(self, b, p):
