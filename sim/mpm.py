@@ -37,9 +37,8 @@ from .scene import SHAPE_KINDS, EnvSpec, sample_water
 log = logging.getLogger(__name__)
 
 _WALL = -1  # closest-feature index for the tank walls
-#: CPU: particles per environment above which fewer environments than threads run staged (``MPMSolver.step``).
-#: One 3D dam-break environment on 2 threads (BENCHMARKS.md, session 34): 16,000 particles 5.3-5.6e6
-#: particle-substeps/s whole-substep, 4.7-5.5e6 staged; 128,000 particles 6.0e6 against 7.0e6
+#: CPU: particles per environment above which fewer environments than threads run split over the threads
+#: (``MPMSolver.step``: each environment's particle-to-grid split into row slabs, one per thread).
 _SPLIT_ENV_PARTICLES = 32768
 #: m added to every collider's culling bounds, so that float32 rounding never culls a point inside a collider
 _CULL_MARGIN = 1e-3
@@ -83,6 +82,7 @@ class MPMSolver:
         self.threads = int(ti.lang.impl.current_cfg().cpu_max_num_threads) if self.arch == "cpu" else 1
         self._envs_per_thread = -(-self.B // self.threads)
         self._env_block = max(self._envs_per_thread, 512)
+        self._row_block = max(-(-self.B * self.res[0] // self.threads), 512)
         self._n_running = self.B
         self.p_vol = cfg.dx**dim / cfg.ppc
         self.p_mass = cfg.rho * self.p_vol
@@ -108,6 +108,14 @@ class MPMSolver:
         self.box_cur = ti.Vector.field(dim, ti.i32)
         self.box_cur_hi = ti.Vector.field(dim, ti.i32)
         fb.dense(ti.i, self.B).place(self.box_cur, self.box_cur_hi)
+        # split path (``_substep_split``): the rows of thread t's slab are split_row[b, t] .. split_row[b, t + 1] - 1
+        self.split_row = ti.field(ti.i32)
+        fb.dense(ti.ij, (self.B, self.threads + 1)).place(self.split_row)
+        self.part_lo = ti.Vector.field(dim, ti.i32)  # each thread's box of written nodes (then box_cur)
+        self.part_hi = ti.Vector.field(dim, ti.i32)
+        fb.dense(ti.ij, (self.B, self.threads)).place(self.part_lo, self.part_hi)
+        self.row_count = ti.field(ti.i32)  # (b, thread, row): particles whose stencil starts in the row (balance)
+        fb.dense(ti.ijk, (self.B, self.threads, self.res[0])).place(self.row_count)
         self.grid_v = ti.Vector.field(dim, ti.f32)
         self.grid_m = ti.field(ti.f32)
         fb.dense(ti.axes(*range(dim + 1)), (self.B,) + self.res).place(self.grid_v, self.grid_m)
@@ -337,18 +345,25 @@ class MPMSolver:
         On the CPU (deterministic) one launch runs all of them, each environment's in one task
         (``_advance_envs``); ``staged`` runs one launch per substep with one offloaded loop per stage
         instead (``_substep``: the same results, bit for bit; for ``benchmarks.sim_profile``'s per-stage
-        times). The CPU also runs staged when fewer environments run than there are threads and each
-        holds more than ``_SPLIT_ENV_PARTICLES`` particles (a large 3D scene: its grid-to-particle
-        stage then splits over the threads). The GPU always runs staged, in parallel over particles
-        and grid rows."""
+        times). When fewer environments run than there are threads and each holds more than
+        ``_SPLIT_ENV_PARTICLES`` particles, the CPU splits every stage of each environment over the
+        threads instead (``_substep_split``, one launch per substep; the same results, bit for bit).
+        The GPU always runs staged, in parallel over particles and grid rows."""
         n = int(n_substeps)
-        if self.serial_p2g and not staged and (self._n_running >= self.threads or self.N <= _SPLIT_ENV_PARTICLES):
+        if self.serial_p2g and not staged and self._n_running > 0 and self._split():
+            for _ in range(n):
+                self._substep_split(self._n_running)
+        elif self.serial_p2g and not staged:
             if n > 0 and self._n_running > 0:
                 self._advance_envs(n, self._n_running)
         else:
             for _ in range(n):
                 self._substep()
         self.time += n * self.cfg.dt
+
+    def _split(self) -> bool:
+        """Whether the CPU runs each environment's substep split over the threads (``step``)."""
+        return self._n_running < self.threads and self.N > _SPLIT_ENV_PARTICLES
 
     def sync(self) -> None:
         """Wait until every launched kernel has finished (GPU launches are asynchronous; for timing)."""
@@ -524,8 +539,9 @@ class MPMSolver:
         return n, vc
 
     @ti.func
-    def _p2g(self, b, p):
-        """Scatter particle p's mass and momentum to its 3^dim stencil; returns the stencil's first node."""
+    def _p2g(self, b, p, r0, r1, rows: ti.template()):
+        """Scatter particle p's mass and momentum to its 3^dim stencil; returns the stencil's first node.
+        With ``rows`` only the stencil's nodes in grid rows r0 .. r1 - 1 (the split path's slab)."""
         dx = self.cfg.dx
         inv_dx = 1.0 / dx
         dt = self.cfg.dt
@@ -542,9 +558,10 @@ class MPMSolver:
             for d in ti.static(range(self.dim)):
                 weight *= w[offset[d]][d]
             gi = self._gidx(b, base + offset)
-            if ti.static(self.serial_p2g):  # this env's scatter runs on one thread: plain adds
-                self.grid_v[gi] = self.grid_v[gi] + weight * (mv + affine @ dpos)
-                self.grid_m[gi] = self.grid_m[gi] + weight * self.p_mass
+            if ti.static(self.serial_p2g):  # this node's scatter runs on one thread: plain adds
+                if not ti.static(rows) or (r0 <= gi[1] and gi[1] < r1):
+                    self.grid_v[gi] = self.grid_v[gi] + weight * (mv + affine @ dpos)
+                    self.grid_m[gi] = self.grid_m[gi] + weight * self.p_mass
             else:
                 self.grid_v[gi] += weight * (mv + affine @ dpos)
                 self.grid_m[gi] += weight * self.p_mass
@@ -637,7 +654,7 @@ class MPMSolver:
                     self._begin_env(b)
             for b, p in ti.ndrange(self.B, self.N):
                 if p < self.n_part[b] and self.active[b]:
-                    base = self._p2g(b, p)
+                    base = self._p2g(b, p, 0, 0, False)
                     ti.atomic_min(self.box_cur[b], base)
                     ti.atomic_max(self.box_cur_hi[b], base + 2)
             for b, i in ti.ndrange(self.B, self.res[0]):
@@ -656,7 +673,7 @@ class MPMSolver:
         self._begin_env(b)
         lo, hi = self.box_cur[b], self.box_cur_hi[b]
         for p in range(self.n_part[b]):
-            base = self._p2g(b, p)
+            base = self._p2g(b, p, 0, 0, False)
             lo = ti.min(lo, base)
             hi = ti.max(hi, base + 2)
         self.box_cur[b], self.box_cur_hi[b] = lo, hi
@@ -686,6 +703,91 @@ class MPMSolver:
             e = k * self.threads + t
             if e < self.B:
                 j = e
+        return j
+
+    @ti.kernel
+    def _substep_split(self, n_running: ti.i32):
+        """CPU, fewer running environments than threads: one substep with each stage split over the
+        threads, in three parallel loops (each a barrier; fewer barriers matter more than balance here).
+
+        Particle to grid gives thread t the grid rows of slab t (split_row[b, t] .. split_row[b, t + 1] - 1;
+        slab 0 and the last are open-ended, so the slabs always cover the grid): it clears the rows of the
+        last box in its slab, then reads all particles in index order and adds only to its own rows, so each
+        node receives the same additions in the same order as in ``_env_grid_phase``: the results are the
+        same, bit for bit. Where the slabs split the rows only changes the balance: grid to particle counts
+        each thread's particles per row, and the serial step between places the next substep's slabs."""
+        big = ti.static(1 << 20)
+        for q in range(self.threads * self._env_block):
+            t = q // self._env_block
+            k = q % self._env_block
+            if k < n_running:
+                b = self.run_order[k]
+                r0 = -big if t == 0 else self.split_row[b, t]
+                r1 = big if t == self.threads - 1 else self.split_row[b, t + 1]
+                for i in range(ti.max(r0, self.box_cur[b][0]), ti.min(r1, self.box_cur_hi[b][0] + 1)):
+                    self._for_active_nodes(b, i, self._clear_node)
+                lo = ti.Vector([self.res[d] for d in ti.static(range(self.dim))])
+                hi = ti.Vector.zero(ti.i32, self.dim)
+                for p in range(self.n_part[b]):
+                    first = ti.cast(self.x[b, p][0] * (1.0 / self.cfg.dx) - 0.5, ti.i32)
+                    if first + 3 >= r0 and first - 1 < r1:  # one row of slack for rounding; _p2g checks exactly
+                        base = self._p2g(b, p, r0, r1, True)
+                        lo = ti.min(lo, base)
+                        hi = ti.max(hi, base + 2)
+                self.part_lo[b, t], self.part_hi[b, t] = lo, hi
+        for k in range(n_running):
+            b = self.run_order[k]
+            self._begin_env(b)  # moves the bodies (particle to grid does not read them) and empties the box
+            for t in range(self.threads):  # every particle was scattered by some thread: the box is the union
+                self.box_cur[b] = ti.min(self.box_cur[b], self.part_lo[b, t])
+                self.box_cur_hi[b] = ti.max(self.box_cur_hi[b], self.part_hi[b, t])
+            self._place_slabs(b)
+        for q in range(self.threads * self._row_block):
+            r = self._interleaved(q, self._row_block, n_running * self.res[0])
+            if r >= 0:
+                self._for_active_nodes(self.run_order[r // self.res[0]], r % self.res[0], self._update_node)
+        for q in range(self.threads * self._env_block):  # thread t: the t-th share of each environment's particles
+            t = q // self._env_block
+            k = q % self._env_block
+            if k < n_running:
+                b = self.run_order[k]
+                n = self.n_part[b]
+                for i in range(self.res[0]):
+                    self.row_count[b, t, i] = 0
+                for p in range(t * n // self.threads, (t + 1) * n // self.threads):
+                    self._g2p(b, p)
+                    first = ti.cast(self.x[b, p][0] * (1.0 / self.cfg.dx) - 0.5, ti.i32)
+                    self.row_count[b, t, ti.math.clamp(first, 0, self.res[0] - 1)] += 1
+
+    @ti.func
+    def _place_slabs(self, b):
+        """Place the inner slab boundaries split_row[b, 1 .. threads - 1] so that each slab holds about as
+        many particles (by the row of their stencil's first node, as counted by the last grid to particle)."""
+        n = 0
+        for t in range(self.threads):
+            for i in range(self.res[0]):
+                n += self.row_count[b, t, i]
+        t = 1
+        seen = 0
+        for i in range(self.res[0]):
+            for u in range(self.threads):
+                seen += self.row_count[b, u, i]
+            while t < self.threads and seen * self.threads >= t * n:
+                self.split_row[b, t] = i + 1
+                t += 1
+        while t < self.threads:
+            self.split_row[b, t] = self.res[0]
+            t += 1
+
+    @ti.func
+    def _interleaved(self, q, block: ti.template(), count):
+        """Item (0 .. count - 1) of CPU loop index q over ``threads x block``, or -1: thread t's block
+        holds items t, t + T, t + 2T, ... (``__init__``)."""
+        t = q // block
+        k = q % block
+        j = k * self.threads + t
+        if j >= count:
+            j = -1
         return j
 
     @ti.func

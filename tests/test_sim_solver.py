@@ -310,6 +310,37 @@ def test_whole_substeps_per_environment_equal_the_staged_substep_bitwise():
     assert np.abs(runs[0][0] - runs[0][1]).max() > 1e-3  # the environments did differ
 
 
+def test_split_substep_equals_the_whole_substep_bitwise(monkeypatch):
+    """With fewer running environments than threads, large scenes split each environment's substep over the
+    threads (particle to grid by row slabs, each thread adding only to its own rows in the same particle
+    order): the bits of the one-task-per-environment path, here forced on a small scene, with environments
+    frozen and resumed in between (so the split path takes over from the other and back)."""
+    import sim.mpm as mpm
+
+    runs = []
+    for threshold in (10**9, 0):
+        monkeypatch.setattr(mpm, "_SPLIT_ENV_PARTICLES", threshold)
+        solver = MPMSolver(SimConfig(n_envs=3, max_particles=512))
+        if solver.threads < 2:
+            solver.close()
+            pytest.skip("the split path needs two or more CPU threads")
+        solver.reset([_cup_env(x=0.2 + 0.04 * b, theta=0.15 * b) for b in range(3)])
+        solver.set_body_velocity(0, np.tile([0.15, 0.08], (3, 1)), np.linspace(-0.6, 0.9, 3))
+        solver.step(30)
+        solver.set_active([False, True, False])
+        assert solver._split() == (threshold == 0)
+        solver.step(40)
+        solver.set_active([True, True, True])
+        solver.step(20)
+        solver.set_active([True, False, False])
+        solver.step(25)
+        runs.append([solver.positions(b).copy() for b in range(3)] + [solver.velocities(1), solver.body_poses(0)])
+        solver.close()
+    for a, b in zip(*runs):
+        np.testing.assert_array_equal(a, b)
+    assert np.abs(runs[0][0] - runs[0][1]).max() > 1e-3  # the environments did differ
+
+
 def test_region_counts_in_body_frame():
     solver = MPMSolver(SimConfig(n_envs=2, max_particles=512))
     solver.reset([_cup_env(x=0.3), _cup_env(x=0.2, theta=0.3)])
@@ -366,6 +397,28 @@ def test_three_dimensional_tank_runs():
     assert len(x) == solver.particle_counts()[0] and np.isfinite(x).all()
     assert x[:, 1].mean() < z0  # it falls
     solver.close()
+
+
+@pytest.mark.slow  # compiles its own kernels twice
+def test_three_dimensional_split_substep_equals_the_whole_substep_bitwise(monkeypatch):
+    """The split path (one environment's substep over all threads, the 3D peer benchmark's B = 1 case) gives
+    the bits of the one-task path in 3D too."""
+    import sim.mpm as mpm
+
+    runs = []
+    for threshold in (10**9, 0):
+        monkeypatch.setattr(mpm, "_SPLIT_ENV_PARTICLES", threshold)
+        cfg = SimConfig(dim=3, domain=(0.2, 0.2, 0.2), dx=0.02, dt=5e-4, ppc=8, max_particles=2048)
+        solver = MPMSolver(cfg)
+        if solver.threads < 2:
+            solver.close()
+            pytest.skip("the split path needs two or more CPU threads")
+        solver.reset([EnvSpec(water=[WaterBlock((0.06, 0.06, 0.06), (0.1, 0.14, 0.12))])])
+        solver.advance(0.08)
+        runs.append((solver.positions(0), solver.velocities(0)))
+        solver.close()
+    for a, b in zip(*runs):
+        np.testing.assert_array_equal(a, b)
 
 
 @pytest.mark.parametrize("kind,size", [("box", (0.03, 0.004)), ("capsule", (0.02, 0.005)), ("ellipse", (0.065, 0.007))])
