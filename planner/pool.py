@@ -201,8 +201,11 @@ class PlanPool:
             self.start()
         record = errors == "record"
         if self._executor is None:
-            return [self._run_here(reqs, mde, record) for reqs, mde in groups]
-        return self._run_in_workers(groups, record)
+            out = [self._run_here(reqs, mde, record) for reqs, mde in groups]
+        else:
+            out = self._run_in_workers(groups, record)
+        _warn_time_budget(out, self.config)
+        return out
 
     def start(self) -> float:
         """Start the worker processes now (otherwise the first :meth:`run` does); returns seconds.
@@ -369,6 +372,17 @@ class PlanPool:
 
 
 _ERRORS = ("raise", "record")
+
+
+def _warn_time_budget(out: list[list[PlanResult | CandidateSet]], config: PlannerConfig) -> None:
+    """Say when runs ended on the wall-clock time budget: those results depend on the machine's speed at
+    that moment (a suspended or overloaded process), not only on the seeds, so a rerun may differ."""
+    runs = [r for results in out for res in results for r in (getattr(res, "runs", None) or [res])]
+    hit = sum(getattr(r.stats, "termination", None) == "time_budget" for r in runs)
+    if hit:
+        log.warning("planner: %d of %d run(s) stopped on the wall-clock time budget (%g s) before the propagation "
+                    "budget: not reproducible (was the process suspended or the machine overloaded?)", hit, len(runs),
+                    config.time_budget)
 
 
 def failed_run(request: PlanRequest, error: BaseException, config: PlannerConfig) -> PlanResult:

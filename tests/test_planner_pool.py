@@ -235,3 +235,22 @@ def test_an_mde_that_does_not_pickle_is_planned_in_process(dynamics, standin_mde
         got = p.run(reqs, mde)
         assert not p.parallel and "MDE could not be sent" in p.fallback_reason
     assert [fingerprint(r) for r in got] == [fingerprint(r) for r in in_process(dynamics, mde, reqs)]
+
+
+def test_runs_stopped_by_the_wall_clock_budget_are_reported(dynamics, caplog):
+    """A run that ends on the wall-clock safety net instead of the propagation budget depends on the machine's
+    speed at that moment: the pool says so (a suspended run would otherwise differ from its rerun silently)."""
+    import dataclasses
+
+    cfg = dataclasses.replace(CFG, time_budget=1e-9, propagation_budget=10**6)
+    reqs = requests()[:3]
+    with caplog.at_level(logging.WARNING, logger="planner.pool"):
+        out = PlanPool(dynamics, cfg, workers=1).run(reqs)
+    runs = [r for res in out for r in (res.runs if isinstance(res, CandidateSet) else [res])]
+    assert runs and all(r.stats.termination == "time_budget" for r in runs)
+    msg = [r.getMessage() for r in caplog.records if "wall-clock time budget" in r.getMessage()]
+    assert msg and f"{len(runs)} of {len(runs)} run(s)" in msg[0]
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="planner.pool"):
+        PlanPool(dynamics, CFG, workers=1).run(reqs[:1])
+    assert not any("wall-clock" in r.getMessage() for r in caplog.records)
