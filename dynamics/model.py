@@ -129,6 +129,18 @@ def project_fractions(v: Tensor) -> Tensor:
 
 _ACT = {"silu": nn.SiLU, "tanh": nn.Tanh, "relu": nn.ReLU}
 _ACT_NP = {"silu": lambda h: h / (1.0 + np.exp(-h)), "tanh": np.tanh, "relu": lambda h: np.maximum(h, 0.0)}
+
+
+def _silu_inplace(h: np.ndarray) -> None:
+    t = np.negative(h)
+    np.exp(t, out=t)
+    t += 1.0
+    np.divide(h, t, out=h)
+
+
+#: the same arithmetic as ``_ACT_NP``, in place: the batch path's layers are [M, n, 128] arrays, and
+#: allocating two temporaries per layer cost up to a quarter of its time at n = 256 (session 35)
+_ACT_NP_INPLACE = {"silu": _silu_inplace, "tanh": lambda h: np.tanh(h, out=h), "relu": lambda h: np.maximum(h, 0.0, out=h)}
 _SWEEP_FRACTIONS = np.linspace(0.0, 1.0, SWEEP_STEPS)
 
 
@@ -164,12 +176,13 @@ def np_forward(w: dict, k: int, s: np.ndarray, p: np.ndarray, activation: str) -
         f = np.concatenate([s, p, pour_sweep_np(s, p[:, 0], w["geom"])], 1)
         nominal = s[:, :3]
     h = f
-    act = _ACT_NP[activation]
+    act = _ACT_NP_INPLACE[activation]
     last = len(w["W"]) - 1
     for i, (W, b) in enumerate(zip(w["W"], w["b"])):
-        h = np.matmul(h, W) + b
+        h = np.matmul(h, W)
+        h += b
         if i < last:
-            h = act(h)
+            act(h)
     logits = h[..., 3:]
     e = np.exp(logits - logits.max(-1, keepdims=True))
     wts = e / e.sum(-1, keepdims=True)
