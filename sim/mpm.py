@@ -8,7 +8,8 @@ Batching: B independent environments share one set of fields with a leading envi
 CPU one kernel launch advances every running environment by many substeps, one task per environment
 (clear grid, body update + particle-to-grid, grid update, grid-to-particle, in a fixed particle order;
 environments in parallel across threads), so runs are bit reproducible and one environment's motion
-cannot change another's numbers. On the GPU one launch per substep runs the stages as consecutive
+cannot change another's numbers (a single large environment instead splits each stage over the threads,
+with the same per-node order of additions: the same bits). On the GPU one launch per substep runs the stages as consecutive
 offloaded loops, in parallel over grid rows and particles, and particle-to-grid scatters with atomics.
 
 Colliders: tank walls are half-planes; bodies are kinematic rigid bodies (pose + linear and angular
