@@ -84,6 +84,8 @@ class MPMSolver:
         self._envs_per_thread = -(-self.B // self.threads)
         self._env_block = max(self._envs_per_thread, 512)
         self._row_block = max(-(-self.B * self.res[0] // self.threads), 512)
+        #: slabs of the split path (``_substep_split``): one per thread, at least 2 (so that one thread runs it too: tests)
+        self._slabs = max(self.threads, 2)
         self._n_running = self.B
         self.p_vol = cfg.dx**dim / cfg.ppc
         self.p_mass = cfg.rho * self.p_vol
@@ -111,12 +113,12 @@ class MPMSolver:
         fb.dense(ti.i, self.B).place(self.box_cur, self.box_cur_hi)
         # split path (``_substep_split``): the rows of thread t's slab are split_row[b, t] .. split_row[b, t + 1] - 1
         self.split_row = ti.field(ti.i32)
-        fb.dense(ti.ij, (self.B, self.threads + 1)).place(self.split_row)
+        fb.dense(ti.ij, (self.B, self._slabs + 1)).place(self.split_row)
         self.part_lo = ti.Vector.field(dim, ti.i32)  # each thread's box of written nodes (then box_cur)
         self.part_hi = ti.Vector.field(dim, ti.i32)
-        fb.dense(ti.ij, (self.B, self.threads)).place(self.part_lo, self.part_hi)
+        fb.dense(ti.ij, (self.B, self._slabs)).place(self.part_lo, self.part_hi)
         self.row_count = ti.field(ti.i32)  # (b, thread, row): particles whose stencil starts in the row (balance)
-        fb.dense(ti.ijk, (self.B, self.threads, self.res[0])).place(self.row_count)
+        fb.dense(ti.ijk, (self.B, self._slabs, self.res[0])).place(self.row_count)
         self.grid_v = ti.Vector.field(dim, ti.f32)
         self.grid_m = ti.field(ti.f32)
         fb.dense(ti.axes(*range(dim + 1)), (self.B,) + self.res).place(self.grid_v, self.grid_m)
@@ -718,13 +720,13 @@ class MPMSolver:
         same, bit for bit. Where the slabs split the rows only changes the balance: grid to particle counts
         each thread's particles per row, and the serial step between places the next substep's slabs."""
         big = ti.static(1 << 20)
-        for q in range(self.threads * self._env_block):
+        for q in range(self._slabs * self._env_block):
             t = q // self._env_block
             k = q % self._env_block
             if k < n_running:
                 b = self.run_order[k]
                 r0 = -big if t == 0 else self.split_row[b, t]
-                r1 = big if t == self.threads - 1 else self.split_row[b, t + 1]
+                r1 = big if t == self._slabs - 1 else self.split_row[b, t + 1]
                 for i in range(ti.max(r0, self.box_cur[b][0]), ti.min(r1, self.box_cur_hi[b][0] + 1)):
                     self._for_active_nodes(b, i, self._clear_node)
                 lo = ti.Vector([self.res[d] for d in ti.static(range(self.dim))])
@@ -739,7 +741,7 @@ class MPMSolver:
         for k in range(n_running):
             b = self.run_order[k]
             self._begin_env(b)  # moves the bodies (particle to grid does not read them) and empties the box
-            for t in range(self.threads):  # every particle was scattered by some thread: the box is the union
+            for t in range(self._slabs):  # every particle was scattered by some thread: the box is the union
                 self.box_cur[b] = ti.min(self.box_cur[b], self.part_lo[b, t])
                 self.box_cur_hi[b] = ti.max(self.box_cur_hi[b], self.part_hi[b, t])
             self._place_slabs(b)
@@ -747,7 +749,7 @@ class MPMSolver:
             r = self._interleaved(q, self._row_block, n_running * self.res[0])
             if r >= 0:
                 self._for_active_nodes(self.run_order[r // self.res[0]], r % self.res[0], self._update_node)
-        for q in range(self.threads * self._env_block):  # thread t: the t-th share of each environment's particles
+        for q in range(self._slabs * self._env_block):  # thread t: the t-th share of each environment's particles
             t = q // self._env_block
             k = q % self._env_block
             if k < n_running:
@@ -755,7 +757,7 @@ class MPMSolver:
                 n = self.n_part[b]
                 for i in range(self.res[0]):
                     self.row_count[b, t, i] = 0
-                for p in range(t * n // self.threads, (t + 1) * n // self.threads):
+                for p in range(t * n // self._slabs, (t + 1) * n // self._slabs):
                     self._g2p(b, p)
                     first = ti.cast(self.x[b, p][0] * (1.0 / self.cfg.dx) - 0.5, ti.i32)
                     self.row_count[b, t, ti.math.clamp(first, 0, self.res[0] - 1)] += 1
@@ -765,18 +767,18 @@ class MPMSolver:
         """Place the inner slab boundaries split_row[b, 1 .. threads - 1] so that each slab holds about as
         many particles (by the row of their stencil's first node, as counted by the last grid to particle)."""
         n = 0
-        for t in range(self.threads):
+        for t in range(self._slabs):
             for i in range(self.res[0]):
                 n += self.row_count[b, t, i]
         t = 1
         seen = 0
         for i in range(self.res[0]):
-            for u in range(self.threads):
+            for u in range(self._slabs):
                 seen += self.row_count[b, u, i]
-            while t < self.threads and seen * self.threads >= t * n:
+            while t < self._slabs and seen * self._slabs >= t * n:
                 self.split_row[b, t] = i + 1
                 t += 1
-        while t < self.threads:
+        while t < self._slabs:
             self.split_row[b, t] = self.res[0]
             t += 1
 
