@@ -81,8 +81,7 @@ class MPMSolver:
         # on one thread). Scheduling only: every environment's arithmetic, and so every result, is the
         # same (tests/test_sim_solver.py).
         self.threads = int(ti.lang.impl.current_cfg().cpu_max_num_threads) if self.arch == "cpu" else 1
-        self._envs_per_thread = -(-self.B // self.threads)
-        self._env_block = max(self._envs_per_thread, 512)
+        self._env_block = max(-(-self.B // self.threads), 512)
         self._row_block = max(-(-self.B * self.res[0] // self.threads), 512)
         #: slabs of the split path (``_substep_split``): one per thread, at least 2 (so that one thread runs it too: tests)
         self._slabs = max(self.threads, 2)
@@ -644,7 +643,7 @@ class MPMSolver:
             # CPU: one task per environment runs 1-3 (no atomics); environments interleaved over the
             # threads (__init__)
             for i in range(self.threads * self._env_block):
-                b = self._slot(i)
+                b = self._interleaved(i, self._env_block, self.B)
                 if b >= 0 and self.active[ti.max(b, 0)]:  # Taichi's `and` evaluates both sides
                     self._env_grid_phase(b)
         else:
@@ -687,26 +686,13 @@ class MPMSolver:
         """CPU: ``n`` whole substeps of every running environment, one task per environment (its grid and
         particles stay in cache), the running environments interleaved over the threads (``__init__``)."""
         for i in range(self.threads * self._env_block):
-            j = self._slot(i)
-            if j >= 0 and j < n_running:
+            j = self._interleaved(i, self._env_block, n_running)
+            if j >= 0:
                 b = self.run_order[ti.max(j, 0)]  # Taichi's `and` evaluates both sides
                 for _ in range(n):
                     self._env_grid_phase(b)
                     for p in range(self.n_part[b]):
                         self._g2p(b, p)
-
-    @ti.func
-    def _slot(self, i):
-        """The slot (0 .. B - 1) of CPU loop index i over ``threads x _env_block``, or -1: thread t's block
-        holds slots t, t + T, t + 2T, ... (``__init__``)."""
-        t = i // self._env_block
-        k = i % self._env_block
-        j = -1
-        if k < self._envs_per_thread:
-            e = k * self.threads + t
-            if e < self.B:
-                j = e
-        return j
 
     @ti.kernel
     def _substep_split(self, n_running: ti.i32):
@@ -784,8 +770,9 @@ class MPMSolver:
 
     @ti.func
     def _interleaved(self, q, block: ti.template(), count):
-        """Item (0 .. count - 1) of CPU loop index q over ``threads x block``, or -1: thread t's block
-        holds items t, t + T, t + 2T, ... (``__init__``)."""
+        """Item (0 .. count - 1) of CPU loop index q over ``threads x block`` (block >= count / threads), or
+        -1: thread t's block holds items t, t + T, t + 2T, ... (``__init__``). Environments (block
+        ``_env_block``, count B or the running ones) and grid rows (``_row_block``) are spread this way."""
         t = q // block
         k = q % block
         j = k * self.threads + t
