@@ -59,6 +59,9 @@ MODEL_ONLY = "model alone (no MDE)"  # the reference name of the model-only rows
 #: what became of a test problem (:func:`test_outcome`), in stacking order, with its colour
 OUTCOMES = {"goal reached": "#2c7fb8", "clean pour, wrong amount": "#a6bddb", "spilled": "#f03b20",
             "stuck in plant": "#31a354", "other": "#bdbdbd", "no plan found": "#fed976"}
+#: test-outcome column: the share of found plans that reached the goal (how good the admitted plans are, apart
+#: from how many the precondition admits: "no plan found")
+GIVEN_PLAN = "goal reached given a plan"
 OUTCOME_OF_CATEGORY = {"successful_pour": "clean pour, wrong amount", "unsuccessful_pour": "spilled",
                        "stuck_in_plant": "stuck in plant", "other": "other"}
 
@@ -213,7 +216,8 @@ def outcome_shares(rows: Sequence[Mapping[str, Any]]) -> dict[str, float]:
 
 def test_outcome_table(tests: list[dict], alone: list[dict]) -> list[dict]:
     """Rows of ``test_outcomes.csv``: per method and iteration (and ``all``), the share of each outcome over
-    its seeds' test problems; the model alone's (one set of problems per seed) as ``iteration = all``. A
+    its seeds' test problems, and :data:`GIVEN_PLAN` (empty where no plan was found); the model alone's (one set
+    of problems per seed) as ``iteration = all``. A
     (method, seed, iteration, problem) found in several files counts once (the last row)."""
     latest = {(r["method"], str(r["seed"]), int(r["iteration"]), r["problem"]): r for r in tests}
     groups: dict[tuple[str, str], list] = defaultdict(list)
@@ -223,8 +227,14 @@ def test_outcome_table(tests: list[dict], alone: list[dict]) -> list[dict]:
     if alone:
         groups[(MODEL_ONLY, "all")] = latest_rows(alone)
     order = sorted(groups, key=lambda k: (k[0] == MODEL_ONLY, k[0], k[1] == "all", int(k[1]) if k[1] != "all" else 0))
-    return [{"method": m, "iteration": it, "n": len(groups[(m, it)]),
-             **{o: round(v, 4) for o, v in outcome_shares(groups[(m, it)]).items()}} for m, it in order]
+    table = []
+    for m, it in order:
+        shares = outcome_shares(groups[(m, it)])
+        found = 1.0 - shares["no plan found"]
+        table.append({"method": m, "iteration": it, "n": len(groups[(m, it)]),
+                      **{o: round(v, 4) for o, v in shares.items()},
+                      GIVEN_PLAN: round(shares["goal reached"] / found, 4) if found > 0 else ""})
+    return table
 
 
 def plot_test_outcomes(table: list[dict], path: Path) -> None:
@@ -256,11 +266,16 @@ def plot_test_outcomes(table: list[dict], path: Path) -> None:
 
 def test_outcome_lines(table: list[dict]) -> list[str]:
     """The ``all`` rows of :func:`test_outcome_table` as a markdown table for ``summary.md``."""
-    lines = ["What became of the test problems (share over all iterations and seeds):", "",
-             "| method | problems | " + " | ".join(OUTCOMES) + " |", "|---|---:|" + "---:|" * len(OUTCOMES)]
+    lines = ["What became of the test problems (share over all iterations and seeds; the last column is the share of "
+             "found plans that reached the goal, which separates how good the admitted plans are from how many "
+             "the precondition admits):", "",
+             "| method | problems | " + " | ".join(OUTCOMES) + f" | {GIVEN_PLAN} |",
+             "|---|---:|" + "---:|" * (len(OUTCOMES) + 1)]
     for r in table:
         if r["iteration"] == "all":
-            lines.append(f"| {r['method']} | {r['n']} | " + " | ".join(f"{float(r[o]):.2f}" for o in OUTCOMES) + " |")
+            given = f"{float(r[GIVEN_PLAN]):.2f}" if r[GIVEN_PLAN] != "" else "-"
+            lines.append(f"| {r['method']} | {r['n']} | " + " | ".join(f"{float(r[o]):.2f}" for o in OUTCOMES)
+                         + f" | {given} |")
     return lines
 
 

@@ -8,7 +8,7 @@ import pytest
 from scipy import stats
 
 from active.io import read_csv, write_csv
-from active.report import load_ceiling, main, mean_ci, paired, report
+from active.report import GIVEN_PLAN, OUTCOMES, load_ceiling, main, mean_ci, paired, report
 
 
 def test_mean_ci_matches_student_t_by_hand():
@@ -252,11 +252,14 @@ def test_test_outcomes_table_figure_and_summary(tmp_path):
     assert everything["n"] == 8 and everything["goal reached"] == 0.375 and everything["stuck in plant"] == 0.125
     alone = rows[("model alone (no MDE)", "all")]
     assert alone["n"] == 2 and alone["goal reached"] == 0.5 and alone["no plan found"] == 0.0
-    assert sum(v for k, v in alone.items() if k not in ("method", "iteration", "n")) == pytest.approx(1.0)
+    assert sum(alone[o] for o in OUTCOMES) == pytest.approx(1.0)
+    assert alone[GIVEN_PLAN] == 0.5 and everything[GIVEN_PLAN] == pytest.approx(0.375 / 0.75)
+    assert rows[("active_balanced", "2")][GIVEN_PLAN] == pytest.approx(2 / 3, abs=1e-4)
     assert (tmp_path / "rep" / "test_outcomes.png").stat().st_size > 0
     assert len(read_csv(tmp_path / "rep" / "test_outcomes.csv")) == len(made["test_outcomes"])
     md = (tmp_path / "rep" / "summary.md").read_text()
     assert "| active_balanced | 8 | 0.38 |" in md and "| model alone (no MDE) | 2 | 0.50 |" in md
+    assert "| 0.00 | 0.25 | 0.50 |" in md  # active_balanced: other 0, no plan found 0.25, goal reached given a plan 0.5
 
 
 def test_no_tests_file_no_outcome_figure(tmp_path):
