@@ -41,6 +41,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
@@ -133,6 +134,7 @@ def plot_learning_curves(rows: list[dict], path: Path, ceiling: Mapping[str, Any
             ax.axhspan(max(mean - half, 0.0), min(mean + half, 1.0), color="0.5", alpha=0.08)
             drawn[f"model_only:{key}"] = (float(line.get_ydata()[0]), str(line.get_label()))
         ax.set_xlabel("iteration")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # iterations are whole numbers
         ax.set_title(title)
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
@@ -292,6 +294,7 @@ def plot_calibration(rows: list[dict], path: Path) -> None:
     axes[1].set_title("mean negative log likelihood")
     for ax in axes:
         ax.set_xlabel("iteration")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # iterations are whole numbers
         ax.grid(alpha=0.3)
     axes[1].legend(fontsize=8)
     fig.tight_layout()
