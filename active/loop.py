@@ -53,7 +53,8 @@ RESULT_FIELDS = ["method", "seed", "iteration", "n_trajectories", "n_transitions
                  "test_seconds", "iteration_seconds"]
 CATEGORY_FIELDS = ["method", "seed", "iteration", "trajectory", "category", "source", "n_candidates", "steps",
                    "stuck", "stuck_on", "final_spill", "goal", "goal_reached"]
-CALIBRATION_FIELDS = ["method", "seed", "iteration", "n", "coverage50", "coverage80", "coverage95", "nll"]
+CALIBRATION_FIELDS = ["method", "seed", "iteration", "n", "coverage50", "coverage80", "coverage95", "nll",
+                      "coverage95_raw", "nll_raw"]
 #: one row per test problem and iteration (``tests.csv``): what became of each problem, not only the rates
 OUTCOME_FIELDS = ["problem", "goal", "found", "goal_reached", "category", "final_spill"]
 TEST_FIELDS = ["method", "seed", "iteration", *OUTCOME_FIELDS]
@@ -400,6 +401,7 @@ class MethodRun:
                                f"directory (hydra.run.dir=...) or delete {self.dir} to restart this method")
         st["digest"] = self.state["digest"]  # an accepted legacy digest: saved as the current one from now on
         st.setdefault("tests", [])  # state of a run made before tests.csv existed: its rows start here
+        st["calibration"] = [legacy_calibration_row(r) for r in st["calibration"]]
         self.state = st
         if st["mde_path"]:
             self.mde = load_mde_checkpoint(type(self.mde), self.dir / st["mde_path"], self.mde, st["X"], path)
@@ -592,16 +594,33 @@ class MethodRun:
         return success / n, len(idx) / n
 
     def _calibrate(self, it: int) -> None:
-        from mde.calibration import calibration_report
-
         X, y = self.ctx.calibration["X"], self.ctx.calibration["y"]
-        if not len(y):
-            return
-        rep = calibration_report(self.mde, X, y)
-        cov = {float(k): float(v) for k, v in rep["coverage"].items()}
-        self.state["calibration"].append({"method": self.method, "seed": self.ctx.seed, "iteration": it + 1,
-                                          "n": int(rep["n"]), "coverage50": cov.get(0.5), "coverage80": cov.get(0.8),
-                                          "coverage95": cov.get(0.95), "nll": float(rep["nll"])})
+        if len(y):
+            self.state["calibration"].append(calibration_row(self.mde, X, y, self.method, self.ctx.seed, it + 1))
+
+
+def legacy_calibration_row(row: dict) -> dict:
+    """A calibration row written before rows had ``coverage95_raw``: its figures were against the raw labels, so
+    they move to the ``_raw`` columns and the as-fitted ones stay empty (``python -m active.recalibrate`` fills
+    them from the run's MDE checkpoints)."""
+    if "coverage95_raw" in row:
+        return row
+    return {**row, "coverage50": None, "coverage80": None, "coverage95": None, "nll": None,
+            "coverage95_raw": row.get("coverage95"), "nll_raw": row.get("nll")}
+
+
+def calibration_row(mde: Any, X: Any, y: Any, method: str, seed: int, iteration: int) -> dict:
+    """One row of ``calibration.csv``: the MDE's interval coverage and NLL on the held-out transitions, against
+    the labels as the MDE fits them (capped at ``mde.label_max``: a raw label above the cap lies outside every
+    interval by construction), and the 95 % coverage and NLL against the raw labels beside them."""
+    from mde.calibration import calibration_report
+
+    rep = calibration_report(mde, X, y)
+    raw = calibration_report(mde, X, y, as_fitted=False, levels=(0.95,))
+    cov = {float(k): float(v) for k, v in rep["coverage"].items()}
+    return {"method": method, "seed": seed, "iteration": iteration, "n": int(rep["n"]),
+            "coverage50": cov.get(0.5), "coverage80": cov.get(0.8), "coverage95": cov.get(0.95),
+            "nll": float(rep["nll"]), "coverage95_raw": float(raw["coverage"]["0.95"]), "nll_raw": float(raw["nll"])}
 
 
 def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):

@@ -94,7 +94,8 @@ def _curves(rows: list[dict], key: str) -> dict[str, dict[int, list[float]]]:
     """method -> iteration -> values over seeds (last value per (method, seed, iteration))."""
     latest: dict[tuple, float] = {}
     for r in rows:
-        latest[(r["method"], r["seed"], int(r["iteration"]))] = float(r[key])
+        if r.get(key) not in (None, ""):  # e.g. a calibration row from before the column existed
+            latest[(r["method"], r["seed"], int(r["iteration"]))] = float(r[key])
     out: dict[str, dict[int, list[float]]] = defaultdict(lambda: defaultdict(list))
     for (m, _s, it), v in sorted(latest.items()):
         out[m][it].append(v)
@@ -287,7 +288,8 @@ def plot_calibration(rows: list[dict], path: Path) -> None:
         its = sorted(curve)
         axes[0].plot(its, [np.mean(curve[i]) for i in its], marker="o", ms=3, label=m)
     axes[0].axhline(0.95, color="k", ls="--", lw=0.8)
-    axes[0].set_title("95% interval coverage (held-out target transitions)")
+    axes[0].set_title("95% interval coverage (held-out target transitions,\nlabels as fitted: capped at label_max)",
+                      fontsize=9)
     for m, curve in sorted(_curves(rows, "nll").items()):
         its = sorted(curve)
         axes[1].plot(its, [np.mean(curve[i]) for i in its], marker="o", ms=3, label=m)

@@ -3,7 +3,7 @@
 The planner trusts ``mu + beta * sigma < d_max`` with beta = 2 at test time, i.e. it relies on the
 predictive std meaning what a Gaussian std means. This module measures that: coverage of central
 intervals (50/80/95% and a fine grid for the reliability plot) and the mean Gaussian negative log
-likelihood.
+likelihood, against the held-out labels as the MDE fits them (capped at ``label_max`` if it caps).
 
     python -m mde.calibration --model mde.pt --data heldout.pt --out results/calibration
 
@@ -76,13 +76,28 @@ def gaussian_calibration(
     }
 
 
-def calibration_report(model: Any, X: Any, y: Any, **kwargs: Any) -> dict[str, Any]:
+def fitted_labels(model: Any, y: Any) -> Tensor:
+    """``y`` as ``model`` fits labels: capped at its ``config.label_max`` where it has one.
+
+    An MDE fitted on capped labels predicts the capped deviation (the precondition's decision,
+    mu + beta sigma < d_max, is the same for any label above the cap), so a raw held-out label above
+    the cap would lie outside every interval by construction and say nothing about calibration.
+    """
+    y = torch.as_tensor(y)
+    cap = getattr(getattr(model, "config", None), "label_max", None)
+    return y if cap is None else y.clamp(max=float(cap))
+
+
+def calibration_report(model: Any, X: Any, y: Any, as_fitted: bool = True, **kwargs: Any) -> dict[str, Any]:
     """Calibration of ``model.predict(X) -> (mean, std)`` against held-out labels ``y``.
 
     ``model`` is any object with that method (an MDE, or a stand-in with known predictions).
+    ``as_fitted``: compare with the labels as the model fits them (:func:`fitted_labels`); False
+    compares with the raw labels.
     """
     mean, std = model.predict(torch.as_tensor(X))
-    return gaussian_calibration(mean, std, torch.as_tensor(y), **kwargs)
+    target = fitted_labels(model, y) if as_fitted else torch.as_tensor(y)
+    return gaussian_calibration(mean, std, target, **kwargs)
 
 
 def cross_validate(make_mde: Any, X: Any, y: Any, groups: Any, folds: int = 5, seed: int = 0) -> tuple[Tensor, Tensor]:
@@ -146,13 +161,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--model", required=True, help="saved MDE (.pt): HeteroscedasticGPMDE or GroupedMDE")
     parser.add_argument("--data", required=True, help="held-out data: .pt with a dict {'X': n x d, 'y': n}")
     parser.add_argument("--out", required=True, help="output directory")
+    parser.add_argument("--raw-labels", action="store_true",
+                        help="compare with the raw labels, not capped at the model's label_max as it fits them")
     args = parser.parse_args(argv)
 
     from . import load
 
     mde = load(args.model)
     X, y = load_heldout(args.data)
-    report = calibration_report(mde, X, y)
+    report = calibration_report(mde, X, y, as_fitted=not args.raw_labels)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     safeio.write_json(out / "calibration.json", report, indent=2)

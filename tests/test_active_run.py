@@ -455,6 +455,31 @@ def test_stale_calibration_set_rerun_equals_a_fresh_run(cache, straight_run, tmp
         assert read_csv(out / method / "calibration.csv") == read_csv(tmp_path / "fresh" / method / "calibration.csv")
 
 
+def test_recalibrate_rebuilds_old_calibration_rows_from_the_checkpoints(straight_run, tmp_path):
+    """A run whose calibration rows predate the as-fitted columns (coverage95 and nll were against the raw
+    labels): ``python -m active.recalibrate`` gives back a fresh run's rows wherever the iteration's MDE
+    checkpoint is there, and moves the old figures to the ``_raw`` columns where it is not."""
+    from active.loop import legacy_calibration_row
+    from active.recalibrate import main as recalibrate
+
+    out = tmp_path / "run"
+    shutil.copytree(straight_run[0], out)
+    for method in ("active_balanced", "random_actions"):
+        state = torch.load(out / method / "state.pt", weights_only=False)
+        state["calibration"] = [{**{k: v for k, v in r.items() if not k.endswith("_raw")},
+                                 "coverage95": r["coverage95_raw"], "nll": r["nll_raw"]} for r in state["calibration"]]
+        torch.save(state, out / method / "state.pt")
+    (out / "random_actions" / "mde_iter001.pt").unlink()
+    assert recalibrate([str(out)]) == 0
+    assert read_csv(out / "active_balanced" / "calibration.csv") == read_csv(straight_run[0] / "active_balanced" / "calibration.csv")
+    fresh, rebuilt = (read_csv(d / "random_actions" / "calibration.csv") for d in (straight_run[0], out))
+    assert rebuilt[1] == fresh[1]
+    assert rebuilt[0]["coverage95"] == rebuilt[0]["nll"] == ""  # no checkpoint: as-fitted figures unknown
+    assert (rebuilt[0]["coverage95_raw"], rebuilt[0]["nll_raw"]) == (fresh[0]["coverage95_raw"], fresh[0]["nll_raw"])
+    row = torch.load(out / "random_actions" / "state.pt", weights_only=False)["calibration"][1]
+    assert legacy_calibration_row(row) == row  # a resumed run leaves rows of the new kind as they are
+
+
 def test_experiment_config_lists_methods():
     with pytest.raises(ValueError, match="random_actions"):
         ExperimentConfig.from_mapping({"methods": ["nope"]})

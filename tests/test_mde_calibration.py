@@ -101,3 +101,23 @@ def test_command_writes_report_and_plot(tmp_path, capsys):
     assert report["coverage"] == pytest.approx(direct["coverage"]) and report["nll"] == pytest.approx(direct["nll"])
     assert (tmp_path / "cal" / "reliability.png").stat().st_size > 1000
     assert "coverage" in capsys.readouterr().out
+
+
+class CappedGaussian(KnownGaussian):
+    """A stand-in MDE fitted on labels capped at 1.15: it predicts the capped deviation."""
+
+    class config:  # noqa: N801 - the attribute an MDE's configuration is read from
+        label_max = 1.15
+
+
+def test_labels_above_the_cap_are_compared_as_fitted():
+    """A raw label above the model's label_max lies outside every interval of a model that predicts capped
+    labels; as fitted (capped) it is the cap, inside the interval when the prediction is near the cap."""
+    X = torch.zeros(4, 2, dtype=torch.float64)  # mean 1.0, std 0.1: the 95 % interval is 1.0 +- 0.196
+    y = torch.tensor([1.0, 1.1, 5.0, 9.0], dtype=torch.float64)
+    as_fitted = calibration_report(CappedGaussian(), X, y)
+    raw = calibration_report(CappedGaussian(), X, y, as_fitted=False)
+    assert as_fitted["coverage"]["0.95"] == 1.0 and raw["coverage"]["0.95"] == 0.5
+    assert as_fitted["nll"] < raw["nll"]
+    # a model without a cap is compared with the raw labels either way
+    assert calibration_report(KnownGaussian(), X, y)["coverage"] == raw["coverage"]
