@@ -133,7 +133,7 @@ def _changed_method_specs(c: Mapping[str, Any]) -> dict:
 NEUTRAL_EXPERIMENT_SETTINGS = {"plan_goal_tol": None, "plan_spill_limit": None, "plan_accept_tol": None,
                                "fallback": "random_actions"}
 #: the same for the MDE's keys
-NEUTRAL_MDE_SETTINGS = {"lengthscale_max": None, "latent_std_min": None, "label_max": None,
+NEUTRAL_MDE_SETTINGS = {"lengthscale_max": None, "latent_std_min": None, "latent_std_max": None, "label_max": None,
                         "noise_lengthscale_max": None, "hyperparameter_priors": "none"}
 
 

@@ -47,6 +47,11 @@ class MDEConfig:
     #: about (BENCHMARKS.md, sessions 16-17). With ``latent_std_min >= d_max / 2`` an unvisited
     #: transition fails ``mu + 2 sigma < d_max`` as it does before any data.
     latent_std_min: float | None = None
+    #: Upper bound of the same latent std, label units (outputscale <= ``(latent_std_max / label std)^2``);
+    #: None: unbounded. Why: a maximum-likelihood fit on labels of a small spread (mostly clean pours, few at
+    #: ``label_max``) picks a z-scored outputscale 2-3x that of one whose data include failures, and its
+    #: uncertainty then grows faster away from its own pours (BENCHMARKS.md, session 37).
+    latent_std_max: float | None = None
     #: Labels above this (label units) are fitted as this value; None: as they are. Why: the
     #: precondition only asks whether mu + beta sigma < d_max, so every deviation well above d_max
     #: is equally "not admitted", while a few whole spills (pour labels up to ~2, against an admitted
@@ -125,6 +130,11 @@ class MDEConfig:
             _positive_float(self, "noise_lengthscale_max")
         if self.latent_std_min is not None:
             _positive_float(self, "latent_std_min")
+        if self.latent_std_max is not None:
+            _positive_float(self, "latent_std_max")
+            if self.latent_std_min is not None and self.latent_std_min >= self.latent_std_max:
+                raise ValueError(f"latent_std_min ({self.latent_std_min}) must be below latent_std_max "
+                                 f"({self.latent_std_max})")
         if self.label_max is not None:
             _positive_float(self, "label_max")
         _positive_float(self, "prior_std")

@@ -445,6 +445,7 @@ def build_mean_gp(
     train_Yvar: Tensor | None = None,
     lengthscale_max: float | None = None,
     latent_std_min: float | None = None,
+    latent_std_max: float | None = None,
     priors: str = "none",
 ) -> MDEGP:
     """Mean GP on deviations: z-scored labels, prior mean fixed at zero deviation.
@@ -452,7 +453,8 @@ def build_mean_gp(
     ``train_Yvar`` (label units) gives a fixed per-point noise (heteroscedastic step); without it
     the noise is one learned constant (homoscedastic). ``latent_std_min`` (label units) bounds the
     outputscale below by ``(latent_std_min / label std)^2``, so that the latent std far from the
-    data is at least that whatever the labels' spread (the bound is saved with the model's state).
+    data is at least that whatever the labels' spread (the bound is saved with the model's state);
+    ``latent_std_max`` bounds it above in the same way (``(latent_std_max / label std)^2``).
     ``priors``: hyperparameter priors, "none" or "gamma" (see :func:`_kernel`).
     """
     Y = y.reshape(-1, 1)
@@ -477,11 +479,16 @@ def build_mean_gp(
     tf = model.outcome_transform
     model.mean_module.constant = (-tf.means / tf.stdvs).reshape(())
     model.mean_module.raw_constant.requires_grad_(False)
-    if latent_std_min is not None:
-        lower = (latent_std_min / float(tf.stdvs)) ** 2
+    if latent_std_min is not None or latent_std_max is not None:
+        lower = 1e-6 if latent_std_min is None else (latent_std_min / float(tf.stdvs)) ** 2
         kernel = model.covar_module
-        kernel.register_constraint("raw_outputscale", GreaterThan(lower))
-        kernel.outputscale = torch.tensor(max(1.0, 2.0 * lower), dtype=DTYPE)
+        if latent_std_max is None:
+            kernel.register_constraint("raw_outputscale", GreaterThan(lower))
+            kernel.outputscale = torch.tensor(max(1.0, 2.0 * lower), dtype=DTYPE)
+        else:
+            upper = (latent_std_max / float(tf.stdvs)) ** 2
+            kernel.register_constraint("raw_outputscale", Interval(lower, upper))
+            kernel.outputscale = torch.tensor(min(max(1.0, 2.0 * lower), 0.5 * (lower + upper)), dtype=DTYPE)
     return model
 
 

@@ -223,7 +223,8 @@ class HeteroscedasticGPMDE:
         Xf, yf = (X, y) if subset is None else (X[subset], y[subset])
         fit_kw = dict(maxiter=cfg.fit_maxiter, jitter=cfg.jitter, max_tries=cfg.max_jitter_tries)
         build_kw = dict(nu=cfg.nu, bounds=bounds, noise_floor=cfg.noise_floor, lengthscale_max=cfg.lengthscale_max,
-                        latent_std_min=cfg.latent_std_min, priors=cfg.hyperparameter_priors)
+                        latent_std_min=cfg.latent_std_min, latent_std_max=cfg.latent_std_max,
+                        priors=cfg.hyperparameter_priors)
 
         homo = build_mean_gp(Xf, yf, **build_kw)
         homo_ml = fit_gp(homo, **fit_kw)
@@ -459,6 +460,7 @@ class HeteroscedasticGPMDE:
             train_Yvar=state["train_Yvar"],
             lengthscale_max=cfg.lengthscale_max,
             latent_std_min=cfg.latent_std_min,
+            latent_std_max=cfg.latent_std_max,
             priors=cfg.hyperparameter_priors,
         )
         if noise_model is not None:

@@ -281,11 +281,11 @@ OLD_TINY_EXPERIMENT = {
 
 @pytest.mark.parametrize("group, key, off, value", [
     ("mde", "lengthscale_max", None, 2), ("mde", "latent_std_min", None, 0.05), ("mde", "label_max", None, 0.3),
-    ("mde", "noise_lengthscale_max", None, 2), ("mde", "hyperparameter_priors", "none", "gamma"),
+    ("mde", "latent_std_max", None, 0.05), ("mde", "noise_lengthscale_max", None, 2), ("mde", "hyperparameter_priors", "none", "gamma"),
     ("experiment", "fallback", "random_actions", "model_plan")])
 def test_a_key_added_later_keeps_the_digest_at_its_off_value(group, key, off, value):
     """mde.lengthscale_max (session 15), mde.latent_std_min (session 17), mde.label_max and mde.noise_lengthscale_max
-    (session 18), mde.hyperparameter_priors and experiment.fallback (session 23): the off value is the behaviour
+    (session 18), mde.hyperparameter_priors and experiment.fallback (session 23), mde.latent_std_max (session 37): the off value is the behaviour
     before the key existed, so a run directory written then keeps its digest; any other value is another
     configuration."""
     new = compose_config(["experiment=tiny", f"{group}.{key}={'null' if off is None else off}"])

@@ -320,6 +320,24 @@ def test_latent_std_min_keeps_unvisited_inputs_unknown():
         HeteroscedasticGPMDE(latent_std_min=0)
 
 
+def test_latent_std_max_bounds_the_latent_std_far_from_the_data():
+    """latent_std_max: the latent std far from the data is at most the bound (label units), with or
+    without latent_std_min below it; bounds in the wrong order are refused before any fit."""
+    g = torch.Generator().manual_seed(0)
+    X = torch.rand(40, 3, generator=g, dtype=torch.float64)
+    y = 0.3 * torch.rand(40, generator=g, dtype=torch.float64)  # a wide spread: the free fit is far above 0.02
+    far = torch.tensor([[1e8, -1e8, 1e8]], dtype=torch.float64)
+    latent_std = lambda m: float(m.model.posterior(far.unsqueeze(1)).variance.reshape(-1).sqrt())  # noqa: E731
+    assert latent_std(HeteroscedasticGPMDE(**T1).fit(X, y)) > 0.05
+    assert latent_std(HeteroscedasticGPMDE(latent_std_max=0.02, **T1).fit(X, y)) <= 0.02 * (1 + 1e-6)
+    both = HeteroscedasticGPMDE(latent_std_min=0.01, latent_std_max=0.02, **T1).fit(X, y)
+    assert 0.01 * (1 - 1e-6) <= latent_std(both) <= 0.02 * (1 + 1e-6)
+    with pytest.raises(ValueError, match=r"latent_std_min \(0.05\) must be below latent_std_max \(0.02\)"):
+        HeteroscedasticGPMDE(latent_std_min=0.05, latent_std_max=0.02)
+    with pytest.raises(ValueError, match=r"latent_std_max must be a finite number > 0, got -1"):
+        HeteroscedasticGPMDE(latent_std_max=-1)
+
+
 def test_label_max_fits_large_deviations_as_that_value():
     """label_max: labels above it are fitted as it (what train_y reports); a fit without labels above it
     is unchanged; a large deviation stays far above d_max in the prediction."""
