@@ -15,6 +15,8 @@ the method's keyword arguments (``c``) and ``d_max``.
 
 from __future__ import annotations
 
+import hashlib
+
 import torch
 from botorch.acquisition import AcquisitionFunction
 from botorch.models.model import Model
@@ -119,6 +121,44 @@ class TrajectoryVariance(TrajectoryAcquisition):
         return std**2
 
 
+class TrajectoryThompson(TrajectoryAcquisition):
+    """Thompson sampling over the candidates: score = max_t gamma^t f_t with f one joint draw of the deviation
+    posterior over the trajectory's steps, minimised like the paper's alpha (the candidate whose draw is best runs).
+
+    Why: alpha selects on the MDE's point estimate, so it executes the pours the MDE is most wrongly confident about
+    (the optimiser's curse; on this world the active methods' MDEs then refuse good partial pours, BENCHMARKS.md
+    session 37); a posterior draw picks each candidate about as often as it is probably the best. Each trajectory's
+    draw is seeded by its features and ``seed``, so a run is reproducible and a candidate's score does not depend
+    on which others it is scored with.
+    """
+
+    minimise = True
+
+    def __init__(self, model: Model, seed: int = 0, gamma: float = 1.0, observation_noise: bool = True) -> None:
+        super().__init__(model, gamma, observation_noise)
+        self.seed = int(seed)
+
+    def _base_samples(self, X: Tensor) -> Tensor:
+        """One standard normal per step (batch x T), each trajectory's from a generator seeded by its features."""
+        rows = []
+        for traj in X:
+            digest = hashlib.blake2b(traj.detach().cpu().double().numpy().tobytes(), digest_size=8,
+                                     key=self.seed.to_bytes(8, "little", signed=True)).digest()
+            gen = torch.Generator().manual_seed(int.from_bytes(digest, "little") & (2**63 - 1))
+            rows.append(torch.randn(X.shape[-2], generator=gen, dtype=X.dtype))
+        return torch.stack(rows).to(X.device)
+
+    def trajectory_score(self, X: Tensor) -> Tensor:
+        """The drawn worst step of each trajectory in ``X`` (batch x T x d) -> (batch,)."""
+        if X.dim() == 2:
+            X = X.unsqueeze(0)
+        post = self.model.posterior(X, observation_noise=self.observation_noise)
+        draw = post.rsample_from_base_samples(torch.Size([1]), self._base_samples(X).unsqueeze(0))
+        draw = draw.reshape(X.shape[:-1])
+        discount = self.gamma ** torch.arange(X.shape[-2], dtype=X.dtype, device=X.device)
+        return (discount * draw).amax(dim=-1)
+
+
 #: the built-in acquisitions by their name in configs/acquisition/
 ACQUISITIONS = {"alpha": DiscountedMaxUCB, "lcb": DiscountedMaxLCB, "straddle": TrajectoryStraddle,
-                "variance": TrajectoryVariance}
+                "variance": TrajectoryVariance, "thompson": TrajectoryThompson}

@@ -7,7 +7,8 @@ from botorch.models.model import Model
 from botorch.posteriors.gpytorch import GPyTorchPosterior
 from gpytorch.distributions import MultivariateNormal
 
-from active.acquisition import DiscountedMaxLCB, DiscountedMaxUCB, TrajectoryStraddle, TrajectoryVariance
+from active.acquisition import (DiscountedMaxLCB, DiscountedMaxUCB, TrajectoryStraddle, TrajectoryThompson,
+                                TrajectoryVariance)
 
 
 class KnownPosterior(Model):
@@ -84,6 +85,31 @@ def test_gamma_outside_range_is_rejected(gamma):
         DiscountedMaxUCB(KnownPosterior(), gamma=gamma)
 
 
+def test_thompson_draws_are_reproducible_and_follow_the_posterior():
+    """One joint draw per trajectory, seeded by its features and the seed: the same trajectory gets the same score
+    alone or among others; over many trajectories the drawn steps have the posterior's mean and std; the
+    candidate with the best draw is chosen (forward = -score)."""
+    acq = TrajectoryThompson(KnownPosterior(), seed=3)
+    both = torch.cat([A, B])
+    assert torch.equal(acq(both), torch.cat([acq(A), acq(B)]))
+    assert torch.equal(acq(A), TrajectoryThompson(KnownPosterior(), seed=3)(A))
+    assert not torch.equal(acq(A), TrajectoryThompson(KnownPosterior(), seed=4)(A))
+    # one-step trajectories at mean 0.05, std 0.02, each with its own (tiny) feature offset: a distinct draw each
+    n = 4000
+    X = torch.stack([torch.full((n,), 0.05, dtype=torch.float64), torch.full((n,), 0.0004, dtype=torch.float64),
+                     torch.arange(n, dtype=torch.float64)], dim=-1).unsqueeze(1)
+    draws = -acq(X)
+    assert abs(float(draws.mean()) - 0.05) < 4 * 0.02 / n**0.5
+    assert float(draws.std()) == pytest.approx(0.02, rel=0.05)
+    # a certain low trajectory against an uncertain one of higher mean: alpha always picks the first, Thompson the
+    # second in about the share of draws below 0.03 (P(N(0.035, 0.05^2) < 0.03) = 0.46)
+    certain, uncertain = traj((0.03, 1e-12, 0.0)), traj((0.035, 0.0025, 0.0))
+    picks = [int(TrajectoryThompson(KnownPosterior(), seed=k)(torch.cat([certain, uncertain])).argmax())
+             for k in range(400)]
+    assert 0.38 < sum(picks) / len(picks) < 0.54
+    assert int(DiscountedMaxUCB(KnownPosterior(), c=0.0)(torch.cat([certain, uncertain])).argmax()) == 0
+
+
 def test_straddle_needs_positive_threshold():
     with pytest.raises(ValueError, match="d_max"):
         TrajectoryStraddle(KnownPosterior(), d_max=0.0)
@@ -113,7 +139,8 @@ def test_user_acquisition_plugs_in_by_target(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("group,cls", [("alpha", DiscountedMaxUCB), ("lcb", DiscountedMaxLCB),
-                                       ("straddle", TrajectoryStraddle), ("variance", TrajectoryVariance)])
+                                       ("straddle", TrajectoryStraddle), ("variance", TrajectoryVariance),
+                                       ("thompson", TrajectoryThompson)])
 def test_acquisition_group_builds_each_option_with_the_methods_c(group, cls):
     """configs/acquisition/<group>.yaml is a _partial_ spec; the loop completes it with the model, the
     method's c (where accepted) and d_max = experiment.d_max (where accepted)."""
@@ -139,12 +166,13 @@ def test_default_acquisition_is_the_papers_alpha_and_methods_carry_c():
 
     assert compose_config([])["acquisition"] == {"_target_": "active.acquisition.DiscountedMaxUCB", "_partial_": True,
                                                  "gamma": 1.0}
-    assert sorted(METHODS) == ["active_balanced", "active_cautious", "active_mean", "active_straddle", "random_actions",
-                               "random_plan"]
+    assert sorted(METHODS) == ["active_balanced", "active_cautious", "active_mean", "active_straddle", "active_thompson",
+                               "random_actions", "random_plan"]
     cs = {m: build_method(m).acquisition for m in METHODS}
     assert cs == {"random_actions": None, "random_plan": None, "active_cautious": {"c": -0.1},
                   "active_mean": {"c": 0.0}, "active_balanced": {"c": 0.1},
-                  "active_straddle": {"_target_": "active.acquisition.TrajectoryStraddle", "kappa": 1.96, "gamma": 1.0}}
+                  "active_straddle": {"_target_": "active.acquisition.TrajectoryStraddle", "kappa": 1.96, "gamma": 1.0},
+                  "active_thompson": {"_target_": "active.acquisition.TrajectoryThompson", "seed": 0, "gamma": 1.0}}
     assert isinstance(build_method("random_actions"), RandomActions) and not build_method("random_actions").plans
     assert isinstance(build_method("random_plan"), RandomPlan)
     assert isinstance(build_method("active_mean"), ActiveChoice)
