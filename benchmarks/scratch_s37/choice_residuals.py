@@ -1,13 +1,16 @@
-"""PYTHONPATH=. python benchmarks/scratch_s37/choice_residuals.py RUN_DIR (every mde_iterNNN.pt kept).
+"""PYTHONPATH=. python benchmarks/scratch_s37/choice_residuals.py RUN_DIR [METHOD ...] (every mde_iterNNN.pt kept).
 The optimiser's curse check: each training trajectory's pour transitions predicted by the MDE that chose it (the
 previous round's checkpoint), against their labels, per method (rounds 2-20)."""
 import csv, sys, numpy as np, torch
 import mde as M
 RUN = sys.argv[1]
 print("method | pours | mean label | mean predicted mu (choosing MDE) | label - mu | share label>=0.07 | of those predicted mu+2sd<0.07")
-for meth in ("active_balanced","active_cautious","active_mean","random_plan"):
+from pathlib import Path
+methods = sys.argv[2:] or ["active_balanced", "active_cautious", "active_mean", "random_plan"]
+seeds = sorted(int(p.name[4:]) for p in Path(RUN).glob("seed*"))
+for meth in methods:
     res=[]
-    for s in range(4):
+    for s in seeds:
         d=f"{RUN}/seed{s}/{meth}"
         cats=list(csv.DictReader(open(f"{d}/categories.csv")))
         D=torch.load(f"{d}/dataset.pt",weights_only=False); X=D["X"]; Y=D["y"]
