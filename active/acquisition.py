@@ -159,6 +159,77 @@ class TrajectoryThompson(TrajectoryAcquisition):
         return (discount * draw).amax(dim=-1)
 
 
+class TrajectoryAdmissionGain(TrajectoryAcquisition):
+    """Look-ahead for the test planner: the expected number of reference transitions that the test precondition
+    ``mu + beta sigma < d_max`` admits once the trajectory's steps are observed, minus the number it admits now;
+    maximised.
+
+    Why: the per-step scores rank a trajectory by the MDE's belief about its own steps; the planner at test time
+    needs the precondition to admit good transitions of many plans. Observing steps C with noise changes the
+    latent posterior at a reference transition r by a normal update of variance v_r = S_rC (S_CC + N_C)^-1 S_Cr
+    (exact for a GP: label-independent for the homoscedastic MDE), so its std after is sqrt(var_r - v_r) and its
+    mean is N(mu_r, v_r) distributed; P(admitted after) = Phi((d_max - beta std_after - mu_r) / sqrt(v_r)). A
+    one-step look-ahead in the spirit of stepwise uncertainty reduction for level sets (Bect et al. 2012) and
+    the knowledge gradient, with the test precondition as the quantity of interest.
+
+    ``reference`` (``r x d``): transitions the test planner is likely to need; the loop passes the steps of every
+    candidate planned for the current chunk of training problems. None: the trajectory's own steps.
+    ``model`` must offer ``covariance(Xa, Xb)`` (the MDE's :class:`mde.gp.MarginalModel` does).
+    """
+
+    def __init__(self, model: Model, reference: Tensor | None = None, d_max: float = 0.07, beta: float = 2.0,
+                 observation_noise: bool = True) -> None:
+        super().__init__(model, 1.0, observation_noise)
+        if d_max <= 0:
+            raise ValueError(f"acquisition.d_max = {d_max}: allowed > 0")
+        if not callable(getattr(model, "covariance", None)):
+            raise TypeError(f"{type(self).__name__} needs a model with covariance(Xa, Xb) (e.g. the MDE's "
+                            f"marginal_model); {type(model).__name__} has none")
+        self.d_max, self.beta = float(d_max), float(beta)
+        self.reference = None if reference is None else torch.as_tensor(reference, dtype=torch.float64)
+        if self.reference is not None and (self.reference.dim() != 2 or not len(self.reference)):
+            raise ValueError(f"acquisition.reference: expected a non-empty r x d matrix, got shape "
+                             f"{tuple(self.reference.shape)}")
+        self._now: tuple[Tensor, Tensor] | None = None  # (mean, predictive variance) at the reference
+
+    def _reference_now(self, C: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        if self.reference is None:
+            return (C, *self.model.mean_var(C, self.observation_noise))
+        if self._now is None:
+            self._now = self.model.mean_var(self.reference.to(C), self.observation_noise)
+        return (self.reference.to(C), *self._now)
+
+    def gain(self, C: Tensor) -> Tensor:
+        """Expected change in the number of admitted reference transitions after observing the steps ``C`` (T x d)."""
+        R, mu, var = self._reference_now(C)
+        latent_c = self.model.mean_var(C, False)[1]
+        noise_c = (self.model.mean_var(C, True)[1] - latent_c).clamp_min(0.0)
+        S_rc = self.model.covariance(R, C).to(C)
+        S_cc = self.model.covariance(C, C).to(C) + torch.diag_embed(noise_c)
+        scale = S_cc.diagonal().mean().clamp_min(1e-30)
+        eye = torch.eye(len(C), dtype=C.dtype, device=C.device)
+        L, info = torch.linalg.cholesky_ex(S_cc + 1e-9 * scale * eye)
+        if int(info):  # a repeated noiseless step: a larger jitter
+            L = torch.linalg.cholesky(S_cc + 1e-6 * scale * eye)
+        A = torch.linalg.solve_triangular(L, S_rc.T, upper=False)
+        v = (A * A).sum(dim=0).clamp(min=0.0)
+        v = torch.minimum(v, var)
+        sd_after = (var - v).clamp_min(0.0).sqrt()
+        slack = self.d_max - self.beta * sd_after - mu
+        tiny = v <= 1e-12 * var.clamp_min(1e-30)
+        z = slack / v.clamp_min(1e-300).sqrt()
+        p_after = torch.where(tiny, (slack > 0).to(C.dtype), torch.special.ndtr(z))
+        admitted_now = (mu + self.beta * var.sqrt() < self.d_max).to(C.dtype)
+        return (p_after - admitted_now).sum()
+
+    def trajectory_score(self, X: Tensor) -> Tensor:
+        """Expected admission gain of each trajectory in ``X`` (batch x T x d) -> (batch,)."""
+        if X.dim() == 2:
+            X = X.unsqueeze(0)
+        return torch.stack([self.gain(traj) for traj in X.detach()])
+
+
 #: the built-in acquisitions by their name in configs/acquisition/
 ACQUISITIONS = {"alpha": DiscountedMaxUCB, "lcb": DiscountedMaxLCB, "straddle": TrajectoryStraddle,
-                "variance": TrajectoryVariance, "thompson": TrajectoryThompson}
+                "variance": TrajectoryVariance, "thompson": TrajectoryThompson,
+                "admission": TrajectoryAdmissionGain}

@@ -479,7 +479,8 @@ class MethodRun:
             chunk = problems[c0:c0 + exp.refit_every]
             tp = time.perf_counter()
             cand_sets = yield from self._plan_chunk(chunk, plan_mde, it, c0, beta)  # one planning batch per chunk
-            choices = [self._choose(prob, cands, it, c0 + j)
+            reference = _candidate_steps(cand_sets)
+            choices = [self._choose(prob, cands, it, c0 + j, reference)
                        for j, (prob, cands) in enumerate(zip(chunk, cand_sets))]
             choices = yield from self._plan_fallbacks(chunk, choices, it, c0)
             t_plan += time.perf_counter() - tp
@@ -549,7 +550,7 @@ class MethodRun:
                 choices[j] = Choice(np.asarray(res.trajectory.actions), "fallback_plan", 0)
         return choices
 
-    def _choose(self, prob: Problem, cands: Any, it: int, k: int):
+    def _choose(self, prob: Problem, cands: Any, it: int, k: int, reference: torch.Tensor | None = None):
         ctx, exp = self.ctx, self.ctx.exp
         rng = np.random.default_rng(derive_seed(ctx.seed, self.method, "choose", it, k))
 
@@ -562,7 +563,7 @@ class MethodRun:
         if self.spec.acquisition is not None and not self.mde.is_fitted:
             # no data yet: every candidate has the same prior score; pick one at random (seeded)
             return RandomPlan().choose(trajs, rng, random_actions)
-        return self.spec.choose(trajs, rng, random_actions, lambda kw: self.make_acq(self.mde, kw))
+        return self.spec.choose(trajs, rng, random_actions, lambda kw: self.make_acq(self.mde, kw, reference))
 
     def _test(self, mde: Any, it: int):
         """Plan the test problems with beta_test, execute the plans found; returns (success, found) rates."""
@@ -624,10 +625,18 @@ def calibration_row(mde: Any, X: Any, y: Any, method: str, seed: int, iteration:
             "nll": float(rep["nll"]), "coverage95_raw": float(raw["coverage"]["0.95"]), "nll_raw": float(raw["nll"])}
 
 
+def _candidate_steps(cand_sets: list) -> torch.Tensor | None:
+    """The features of every step of every candidate in a chunk's candidate sets (None when there are none): the
+    transitions the planner currently builds plans from, the reference of a look-ahead acquisition."""
+    rows = [np.asarray(c.features) for s in cand_sets if s is not None for c in s.candidates]
+    return torch.as_tensor(np.concatenate(rows), dtype=torch.float64) if rows else None
+
+
 def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):
     """Build the configured acquisition (``configs/acquisition/``, a ``_partial_`` spec instantiated with
     ``hydra.utils.instantiate``) for an MDE and a method's keyword arguments (``c``; each passed only
-    if the class accepts it, as is ``d_max`` = experiment.d_max unless the spec sets it).
+    if the class accepts it, as is ``d_max`` = experiment.d_max and ``beta`` = experiment.beta_test unless the
+    spec sets them, and ``reference``: the features of the transitions a look-ahead acquisition scores for).
 
     A method whose ``acquisition:`` names a ``_target_`` brings its own spec (e.g. ``active_straddle``), built
     the same way instead of the configured one, so that one run can compare acquisitions side by side."""
@@ -650,16 +659,20 @@ def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):
 
     own: dict[str, Any] = {}  # a method's own spec (its acquisition: names a _target_) -> its factory
 
-    def make(mde: Any, method_kwargs: Mapping[str, Any] | None = None):
+    def make(mde: Any, method_kwargs: Mapping[str, Any] | None = None, reference: Any = None):
         method_kwargs = dict(method_kwargs or {})
         if "_target_" in method_kwargs:
             key = json.dumps(method_kwargs, sort_keys=True, default=str)
             if key not in own:
                 own[key] = acquisition_factory(method_kwargs, exp)
-            return own[key](mde)
+            return own[key](mde, None, reference)
         kw = {k: v for k, v in method_kwargs.items() if k in params}
         if "d_max" in params and "d_max" not in partial.keywords:
             kw["d_max"] = exp.d_max
+        if "beta" in params and "beta" not in partial.keywords and "beta" not in kw:
+            kw["beta"] = exp.beta_test  # a look-ahead acquisition's precondition is the test planner's
+        if "reference" in params and reference is not None:
+            kw["reference"] = reference
         # an MDE's marginal view reads its fit's own factorisation (GPyTorch's refactorisation can fail on it)
         model = getattr(mde, "marginal_model", None)
         model = getattr(mde, "model", mde) if model is None else model

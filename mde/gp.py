@@ -343,6 +343,11 @@ class MarginalModel(DiagonalModel):
             var = var + observation_noise.to(var).reshape(var.shape)
         return mean, var
 
+    def covariance(self, Xa: Tensor, Xb: Tensor) -> Tensor:
+        """The MDE's latent posterior covariance between two sets of rows (label units): the marginals above
+        are its diagonal. For look-ahead acquisitions; the planner and the per-step acquisitions never need it."""
+        return self._mde.covariance(Xa.detach(), Xb.detach()).to(Xa.dtype)
+
 
 class PriorMDEModel(DiagonalModel):
     """BoTorch model of the MDE before any data: mean 0, std ``prior_std`` (label units), iid.
@@ -361,6 +366,11 @@ class PriorMDEModel(DiagonalModel):
         dtype = X.dtype if X.is_floating_point() else self._dtype
         mean = torch.zeros(shape, dtype=dtype, device=X.device)
         return mean, torch.full(shape, self.prior_std**2, dtype=dtype, device=X.device)
+
+    def covariance(self, Xa: Tensor, Xb: Tensor) -> Tensor:
+        """Prior covariance: iid, so identical rows covary with ``prior_std^2`` and others not at all."""
+        same = (Xa.unsqueeze(-2) == Xb.unsqueeze(-3)).all(dim=-1)
+        return same.to(Xa.dtype if Xa.is_floating_point() else self._dtype) * self.prior_std**2
 
 
 def data_bounds(X: Tensor) -> Tensor:

@@ -148,6 +148,21 @@ class GroupedMDE:
         mean, var = self._route(X, "mean_var", observation_noise=observation_noise)
         return mean, var
 
+    def covariance(self, Xa: Any, Xb: Any) -> Tensor:
+        """Latent posterior covariance ``a x b`` (label units, float64): within a group its GP's, across groups 0
+        (the groups are independent GPs)."""
+        Xa, Xb = _as_matrix(Xa, "Xa"), _as_matrix(Xb, "Xb")
+        for X in (Xa, Xb):
+            if self._n_features is not None and X.shape[1] != self._n_features:
+                raise ValueError(f"X has d={X.shape[1]} features but the MDE was fitted with d={self._n_features}")
+        ga, gb = self.group_of(Xa), self.group_of(Xb)
+        out = torch.zeros(Xa.shape[0], Xb.shape[0], dtype=torch.float64)
+        for value in set(torch.unique(ga).tolist()) & set(torch.unique(gb).tolist()):
+            ra, rb = ga == value, gb == value
+            block = self._children.get(value, self._prior).covariance(Xa[ra], Xb[rb])
+            out[ra.nonzero().squeeze(-1).unsqueeze(-1), rb.nonzero().squeeze(-1)] = block
+        return out
+
     def noise_std(self, X: Any) -> Tensor:
         """Std of the observation noise alone at ``X`` (label units)."""
         return self._route(X, "noise_std")[0]

@@ -78,11 +78,27 @@ class KernelCache:
         self.dtype = dtype
         self.d = d
 
+    def _z(self, Xq: Tensor) -> Tensor:
+        """Raw inputs -> kernel space (cache dtype)."""
+        return ((Xq.to(torch.float64) - self.shift) / self.scale).to(self.dtype)
+
     def cross0(self, Xq: Tensor) -> Tensor:
         """Unit-scale correlations ``k0(Xq, X_train)`` for raw query inputs ``Xq`` (``b x d``)."""
-        Zq = ((Xq.to(torch.float64) - self.shift) / self.scale).to(self.dtype)
+        return self._k0(self._z(Xq), self.Z)
+
+    def covariance(self, Xa: Tensor, Xb: Tensor) -> Tensor:
+        """Exact latent posterior covariance ``a x b`` between two sets of raw inputs, the GP's own units,
+        float64: ``s k0(a, b) - k(a, X) K^-1 k(X, b)``. What a look-ahead acquisition needs (how much
+        observing ``b`` would tell about ``a``); the planner never calls it."""
+        Qa, Qb = (torch.linalg.solve_triangular(self.L.to(torch.float64), self.cross0(X).to(torch.float64).T,
+                                                upper=False) for X in (Xa, Xb))
+        prior = self._k0(self._z(Xa), self._z(Xb)).to(torch.float64).mul_(self.outputscale)
+        return prior - Qa.T @ Qb
+
+    def _k0(self, Za: Tensor, Zb: Tensor) -> Tensor:
+        """Unit-scale Matern correlations between two sets of kernel-space points."""
         # explicit differences, not |z|^2 + |z'|^2 - 2 z.z': see mde.gp.scaled_dist (as fast here)
-        a = torch.cdist(Zq, self.Z, compute_mode="donot_use_mm_for_euclid_dist")  # = sqrt(2 nu) |x - x'| / lengthscale
+        a = torch.cdist(Za, Zb, compute_mode="donot_use_mm_for_euclid_dist")  # = sqrt(2 nu) |x - x'| / lengthscale
         E = a.neg().exp_()
         if self.nu == 0.5:
             return E

@@ -352,6 +352,20 @@ class HeteroscedasticGPMDE:
             return mean, torch.full_like(mean, self._config.prior_std**2)
         return mean, var_z.mul_(self._fitted.sigma_z**2).to(dtype)
 
+    def covariance(self, Xa: Any, Xb: Any) -> Tensor:
+        """Latent posterior covariance ``a x b`` (label units, float64) between the rows of ``Xa`` and ``Xb``.
+
+        Before a fit the prior: iid with ``prior_std``, so identical rows covary and others do not. With
+        ``mean_var(X, observation_noise=False)`` it gives the joint latent posterior that a look-ahead
+        acquisition conditions on (:class:`active.acquisition.TrajectoryAdmissionGain`)."""
+        Xa, Xb = self._check_query(Xa), self._check_query(Xb)
+        f = self._fitted
+        if f is None:
+            same = (Xa.unsqueeze(1) == Xb.unsqueeze(0)).all(dim=-1)
+            return same.to(torch.float64) * self._config.prior_std**2
+        with torch.no_grad(), torch_threads(self._config.num_threads):
+            return f.mean_cache.covariance(Xa, Xb).mul_(f.sigma_z**2)
+
     def _predict_z(self, X: Any, observation_noise: bool) -> tuple[Tensor, Tensor | None, torch.dtype]:
         """Mean (label units, output dtype) and float64 variance in z-scored units (None before a fit)."""
         X = self._check_query(X)

@@ -166,13 +166,14 @@ def test_default_acquisition_is_the_papers_alpha_and_methods_carry_c():
 
     assert compose_config([])["acquisition"] == {"_target_": "active.acquisition.DiscountedMaxUCB", "_partial_": True,
                                                  "gamma": 1.0}
-    assert sorted(METHODS) == ["active_balanced", "active_cautious", "active_mean", "active_straddle", "active_thompson",
-                               "random_actions", "random_plan"]
+    assert sorted(METHODS) == ["active_admission", "active_balanced", "active_cautious", "active_mean", "active_straddle",
+                               "active_thompson", "random_actions", "random_plan"]
     cs = {m: build_method(m).acquisition for m in METHODS}
     assert cs == {"random_actions": None, "random_plan": None, "active_cautious": {"c": -0.1},
                   "active_mean": {"c": 0.0}, "active_balanced": {"c": 0.1},
                   "active_straddle": {"_target_": "active.acquisition.TrajectoryStraddle", "kappa": 1.96, "gamma": 1.0},
-                  "active_thompson": {"_target_": "active.acquisition.TrajectoryThompson", "seed": 0, "gamma": 1.0}}
+                  "active_thompson": {"_target_": "active.acquisition.TrajectoryThompson", "seed": 0, "gamma": 1.0},
+                  "active_admission": {"_target_": "active.acquisition.TrajectoryAdmissionGain"}}
     assert isinstance(build_method("random_actions"), RandomActions) and not build_method("random_actions").plans
     assert isinstance(build_method("random_plan"), RandomPlan)
     assert isinstance(build_method("active_mean"), ActiveChoice)
@@ -244,3 +245,97 @@ def test_an_acquisition_that_fails_numerically_executes_a_random_candidate_recor
         ch = ActiveChoice({"c": 0.1}).choose(cands, np.random.default_rng(0), lambda: None, lambda kw: failing)
     assert ch.source == "plan_unscored" and ch.n_candidates == 3 and ch.scores is None
     assert (ch.actions == ch.chosen).all() and ch.chosen == int(np.random.default_rng(0).integers(3))
+
+
+class KnownJoint(Model):
+    """A joint latent posterior over indexed points (X[..., 0] is the index): mean, latent covariance and a constant
+    observation noise fixed by hand, with the MDE view's ``mean_var`` and ``covariance``."""
+
+    num_outputs = 1
+
+    def __init__(self, mean, cov, noise):
+        super().__init__()
+        self.m = torch.tensor(mean, dtype=torch.float64)
+        self.K = torch.tensor(cov, dtype=torch.float64)
+        self.noise = noise
+
+    def mean_var(self, X, observation_noise):
+        i = X[..., 0].long()
+        return self.m[i], self.K[i, i] + (self.noise if observation_noise else 0.0)
+
+    def covariance(self, Xa, Xb):
+        return self.K[Xa[:, 0].long()][:, Xb[:, 0].long()]
+
+    def posterior(self, X, output_indices=None, observation_noise=False, posterior_transform=None):
+        mean, var = self.mean_var(X, observation_noise)
+        return GPyTorchPosterior(MultivariateNormal(mean, torch.diag_embed(var)))
+
+
+def test_admission_gain_by_hand():
+    """Reference: point 0 admitted now (mu + 2 sd = 0.0647 < 0.07), point 1 likely good but too uncertain (0.083),
+    point 2 likely bad (0.123); candidates observe one point each (3: correlated with nothing)."""
+    from math import erf, sqrt
+
+    from active.acquisition import TrajectoryAdmissionGain
+
+    K = [[4e-4, 0, 0, 0], [0, 9e-4, 0, 0], [0, 0, 9e-4, 0], [0, 0, 0, 9e-4]]
+    model = KnownJoint([0.02, 0.02, 0.06, 0.0], K, noise=1e-4)
+    ref = torch.tensor([[0.0], [1.0], [2.0]], dtype=torch.float64)
+    acq = TrajectoryAdmissionGain(model, reference=ref, d_max=0.07, beta=2.0)
+    cands = torch.tensor([[[1.0]], [[2.0]], [[3.0]]], dtype=torch.float64)  # 3 one-step trajectories
+
+    def p_after(mu, latent):  # observing the point itself: v = latent^2 / (latent + noise)
+        v = latent**2 / (latent + 1e-4)
+        sd_after = sqrt(latent + 1e-4 - v)
+        return 0.5 * (1 + erf((0.07 - 2 * sd_after - mu) / sqrt(v) / sqrt(2)))
+
+    want = [p_after(0.02, 9e-4), p_after(0.06, 9e-4), 0.0]
+    assert want[0] == pytest.approx(0.785, abs=1e-3) and want[1] == pytest.approx(0.268, abs=1e-3)
+    assert acq(cands).tolist() == pytest.approx(want, abs=1e-8)  # (the 1e-9 relative jitter)
+    assert int(acq(cands).argmax()) == 0  # the uncertain, probably good transition is worth observing
+    # a two-step trajectory through both: gains add where the points are independent
+    both = torch.tensor([[[1.0], [2.0]]], dtype=torch.float64)
+    assert acq(both).item() == pytest.approx(want[0] + want[1], abs=1e-8)
+    # observing a transition correlated with the admitted point 0 can only risk it: expected gain <= 0 there
+    K2 = [[4e-4, 3.6e-4], [3.6e-4, 4e-4]]
+    risky = TrajectoryAdmissionGain(KnownJoint([0.02, 0.02], K2, noise=1e-4),
+                                    reference=torch.tensor([[0.0]], dtype=torch.float64), d_max=0.07, beta=2.0)
+    assert -1.0 <= risky(torch.tensor([[[1.0]]], dtype=torch.float64)).item() <= 1.0
+
+
+def test_admission_gain_refuses_a_model_without_covariance_and_a_bad_reference():
+    from active.acquisition import TrajectoryAdmissionGain
+
+    with pytest.raises(TypeError, match="covariance"):
+        TrajectoryAdmissionGain(KnownPosterior())
+    model = KnownJoint([0.0], [[1e-4]], noise=1e-4)
+    with pytest.raises(ValueError, match="reference"):
+        TrajectoryAdmissionGain(model, reference=torch.zeros(0, 1))
+    with pytest.raises(ValueError, match="d_max"):
+        TrajectoryAdmissionGain(model, d_max=0.0)
+
+
+def test_admission_method_gets_the_test_beta_d_max_and_the_chunks_candidate_steps():
+    """active_admission's acquisition is completed by the loop: beta = experiment.beta_test, d_max, and the
+    reference = every step of every candidate of the chunk (active.loop._candidate_steps)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from active.acquisition import TrajectoryAdmissionGain
+    from active.experiment import ExperimentConfig
+    from active.loop import _candidate_steps, acquisition_factory
+    from active.methods import build_method
+    from active.run import compose_config
+
+    cfg = compose_config(["experiment.methods=[active_admission]"])
+    make = acquisition_factory(cfg["acquisition"], ExperimentConfig(d_max=0.05, beta_test=3.0))
+    sets = [SimpleNamespace(candidates=[SimpleNamespace(features=np.full((2, 1), k + 2 * j)) for k in range(2)])
+            for j in range(2)] + [None]
+    ref = _candidate_steps(sets)
+    assert ref.shape == (8, 1) and sorted(set(ref[:, 0].tolist())) == [0.0, 1.0, 2.0, 3.0]
+    assert _candidate_steps([None]) is None
+    model = KnownJoint([0.0] * 4, torch.eye(4).mul(1e-4).tolist(), noise=1e-4)
+    acq = make(model, build_method("active_admission", cfg["methods"]).acquisition, ref)
+    assert type(acq) is TrajectoryAdmissionGain and acq.beta == 3.0 and acq.d_max == 0.05
+    assert torch.equal(acq.reference, ref)

@@ -325,7 +325,7 @@ def test_method_specs_are_config_and_arrive_in_the_method_a_run_builds(tmp_path)
     mine = ["+methods.mine._target_=active.methods.RandomPlan", "method=mine"]
     assert settings(mine)[0].methods == ("mine",) and isinstance(built(mine, "mine"), RandomPlan)
     assert isinstance(built([], "active_mean"), ActiveChoice)
-    with pytest.raises(ValueError, match=r"method = 'nope': allowed one of \['active_balanced'"):
+    with pytest.raises(ValueError, match=r"method = 'nope': allowed one of \['active_admission', 'active_balanced'"):
         settings(["method=nope"])
     with pytest.raises(ValueError, match=r"'mine'"):  # experiment.methods names are checked against the node too
         settings(["experiment.methods=[active_balanced,mine]"])

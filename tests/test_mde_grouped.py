@@ -111,3 +111,25 @@ def test_cross_validation_holds_out_whole_groups() -> None:
     assert (mean - y).abs().mean() > (fitted_all - y).abs().mean()
     with pytest.raises(ValueError, match="folds"):
         cross_validate(lambda: GroupedMDE(**T1), X, y, traj, folds=30)
+
+
+@pytest.mark.parametrize("heteroscedastic", [False, True])
+def test_covariance_is_gpytorchs_joint_latent_posterior(heteroscedastic) -> None:
+    """mde covariance (what a look-ahead acquisition conditions on) against GPyTorch's own joint posterior; its
+    diagonal is the latent variance of mean_var; groups are independent; before a fit, the iid prior."""
+    X, y = _two_skills(120, 3)
+    one = HeteroscedasticGPMDE(heteroscedastic=heteroscedastic, **T1).fit(X[X[:, 2] == 0], y[X[:, 2] == 0])
+    Xq = X[X[:, 2] == 0][:6].clone()
+    Xq[:, 0] += 0.01
+    C = one.covariance(Xq, Xq[:4])
+    joint = one.model.posterior(Xq.unsqueeze(0)).distribution.covariance_matrix[0]
+    torch.testing.assert_close(C, joint[:, :4], rtol=1e-4, atol=1e-6 * float(joint.diagonal().max()))
+    torch.testing.assert_close(one.covariance(Xq, Xq).diagonal(), one.mean_var(Xq, observation_noise=False)[1])
+    g = GroupedMDE(group_column=2, heteroscedastic=heteroscedastic, **T1).fit(X, y)
+    mixed = torch.cat([Xq[:3], X[X[:, 2] == 1][:2]])
+    Cg = g.covariance(mixed, mixed)
+    assert torch.all(Cg[:3, 3:] == 0) and torch.all(Cg[3:, :3] == 0)
+    torch.testing.assert_close(Cg[:3, :3], g.covariance(Xq[:3], Xq[:3]))
+    fresh = GroupedMDE(group_column=2, **T1)
+    assert torch.equal(fresh.covariance(Xq[:2], Xq[:2]), torch.eye(2, dtype=torch.float64))
+    assert torch.equal(g.marginal_model.covariance(mixed, mixed), Cg)
