@@ -368,9 +368,13 @@ class PriorMDEModel(DiagonalModel):
         return mean, torch.full(shape, self.prior_std**2, dtype=dtype, device=X.device)
 
     def covariance(self, Xa: Tensor, Xb: Tensor) -> Tensor:
-        """Prior covariance: iid, so identical rows covary with ``prior_std^2`` and others not at all."""
-        same = (Xa.unsqueeze(-2) == Xb.unsqueeze(-3)).all(dim=-1)
-        return same.to(Xa.dtype if Xa.is_floating_point() else self._dtype) * self.prior_std**2
+        return iid_covariance(Xa, Xb, self.prior_std).to(Xa.dtype if Xa.is_floating_point() else self._dtype)
+
+
+def iid_covariance(Xa: Tensor, Xb: Tensor, std: float) -> Tensor:
+    """``a x b`` covariance (float64) of an iid prior with this std: identical rows covary with ``std^2``, others
+    not at all (the MDE before any data)."""
+    return (Xa.unsqueeze(-2) == Xb.unsqueeze(-3)).all(dim=-1).to(torch.float64) * std**2
 
 
 def data_bounds(X: Tensor) -> Tensor:

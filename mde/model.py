@@ -55,6 +55,7 @@ from .gp import (
     build_noise_gp,
     data_bounds,
     fit_gp,
+    iid_covariance,
     safe_cholesky,
     train_inputs_transformed,
 )
@@ -361,8 +362,7 @@ class HeteroscedasticGPMDE:
         Xa, Xb = self._check_query(Xa), self._check_query(Xb)
         f = self._fitted
         if f is None:
-            same = (Xa.unsqueeze(1) == Xb.unsqueeze(0)).all(dim=-1)
-            return same.to(torch.float64) * self._config.prior_std**2
+            return iid_covariance(Xa, Xb, self._config.prior_std)
         with torch.no_grad(), torch_threads(self._config.num_threads):
             return f.mean_cache.covariance(Xa, Xb).mul_(f.sigma_z**2)
 

@@ -123,6 +123,9 @@ class DiffMPM:
         self.ck_J = ti.field(real)
         ck.dense(ti.ijk, (self.n_ck, B, N)).place(self.ck_x, self.ck_v, self.ck_C, self.ck_J)
         self._ck_tree = ck.finalize()
+        # the particle state of a slot and its checkpoint copy, field by field (the copy kernels loop over these)
+        self._state = (self.x, self.v, self.C, self.J)
+        self._ck = (self.ck_x, self.ck_v, self.ck_C, self.ck_J)
         ti.sync()
 
     # ================================================================== memory
@@ -318,27 +321,21 @@ class DiffMPM:
     @ti.kernel
     def save_checkpoint(self, s: ti.i32, c: ti.i32):
         for b, p in ti.ndrange(self.B, self.N):
-            self.ck_x[c, b, p] = self.x[s, b, p]
-            self.ck_v[c, b, p] = self.v[s, b, p]
-            self.ck_C[c, b, p] = self.C[s, b, p]
-            self.ck_J[c, b, p] = self.J[s, b, p]
+            for f, ck in ti.static(zip(self._state, self._ck)):
+                ck[c, b, p] = f[s, b, p]
 
     @ti.kernel
     def load_checkpoint(self, c: ti.i32, s: ti.i32):
         for b, p in ti.ndrange(self.B, self.N):
-            self.x[s, b, p] = self.ck_x[c, b, p]
-            self.v[s, b, p] = self.ck_v[c, b, p]
-            self.C[s, b, p] = self.ck_C[c, b, p]
-            self.J[s, b, p] = self.ck_J[c, b, p]
+            for f, ck in ti.static(zip(self._state, self._ck)):
+                f[s, b, p] = ck[c, b, p]
 
     @ti.kernel
     def move_grad(self, src: ti.i32, dst: ti.i32):
         """Adjoint of slot src becomes the adjoint of slot dst (segment boundary in the backward pass)."""
         for b, p in ti.ndrange(self.B, self.N):
-            self.x.grad[dst, b, p] = self.x.grad[src, b, p]
-            self.v.grad[dst, b, p] = self.v.grad[src, b, p]
-            self.C.grad[dst, b, p] = self.C.grad[src, b, p]
-            self.J.grad[dst, b, p] = self.J.grad[src, b, p]
+            for f in ti.static(self._state):
+                f.grad[dst, b, p] = f.grad[src, b, p]
 
     @ti.kernel
     def clear_particle_grads(self, keep: ti.i32):
