@@ -122,10 +122,14 @@ class GroupedMDE:
         self._X, self._y, self._n_features = X, y, int(X.shape[1])
         return self
 
-    def _route(self, X: Any, fn: str, **kwargs: Any) -> list[Tensor]:
-        X = _as_matrix(X, "X")
+    def _check_query(self, X: Any, name: str = "X") -> Tensor:
+        X = _as_matrix(X, name)
         if self._n_features is not None and X.shape[1] != self._n_features:
-            raise ValueError(f"X has d={X.shape[1]} features but the MDE was fitted with d={self._n_features}")
+            raise ValueError(f"{name} has d={X.shape[1]} features but the MDE was fitted with d={self._n_features}")
+        return X
+
+    def _route(self, X: Any, fn: str, **kwargs: Any) -> list[Tensor]:
+        X = self._check_query(X)
         g = self.group_of(X)
         outs: list[Tensor] | None = None
         for value in torch.unique(g).tolist():
@@ -151,10 +155,7 @@ class GroupedMDE:
     def covariance(self, Xa: Any, Xb: Any) -> Tensor:
         """Latent posterior covariance ``a x b`` (label units, float64): within a group its GP's, across groups 0
         (the groups are independent GPs)."""
-        Xa, Xb = _as_matrix(Xa, "Xa"), _as_matrix(Xb, "Xb")
-        for X in (Xa, Xb):
-            if self._n_features is not None and X.shape[1] != self._n_features:
-                raise ValueError(f"X has d={X.shape[1]} features but the MDE was fitted with d={self._n_features}")
+        Xa, Xb = self._check_query(Xa, "Xa"), self._check_query(Xb, "Xb")
         ga, gb = self.group_of(Xa), self.group_of(Xb)
         out = torch.zeros(Xa.shape[0], Xb.shape[0], dtype=torch.float64)
         for value in set(torch.unique(ga).tolist()) & set(torch.unique(gb).tolist()):

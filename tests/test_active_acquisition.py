@@ -296,11 +296,14 @@ def test_admission_gain_by_hand():
     # a two-step trajectory through both: gains add where the points are independent
     both = torch.tensor([[[1.0], [2.0]]], dtype=torch.float64)
     assert acq(both).item() == pytest.approx(want[0] + want[1], abs=1e-8)
-    # observing a transition correlated with the admitted point 0 can only risk it: expected gain <= 0 there
+    # observing a transition correlated with the admitted point 0 can only risk it: expected gain < 0 there
     K2 = [[4e-4, 3.6e-4], [3.6e-4, 4e-4]]
     risky = TrajectoryAdmissionGain(KnownJoint([0.02, 0.02], K2, noise=1e-4),
                                     reference=torch.tensor([[0.0]], dtype=torch.float64), d_max=0.07, beta=2.0)
-    assert -1.0 <= risky(torch.tensor([[[1.0]]], dtype=torch.float64)).item() <= 1.0
+    v = 3.6e-4**2 / (4e-4 + 1e-4)  # v_0 = S_01^2 / (S_11 + noise)
+    keep = 0.5 * (1 + erf((0.07 - 2 * sqrt(5e-4 - v) - 0.02) / sqrt(v) / sqrt(2)))  # P(still admitted) ~ 0.88
+    gain = risky(torch.tensor([[[1.0]]], dtype=torch.float64)).item()
+    assert gain == pytest.approx(keep - 1.0, abs=1e-8) and gain < 0
 
 
 def test_admission_gain_refuses_a_model_without_covariance_and_a_bad_reference():
