@@ -16,7 +16,7 @@ from typing import Any, Mapping
 ALLOWED_NU = (0.5, 1.5, 2.5)
 ALLOWED_INPUT_SCALING = ("none", "normalize")
 ALLOWED_PREDICT_DTYPE = ("float32", "float64")
-ALLOWED_PRIORS = ("none", "gamma")
+ALLOWED_PRIORS = ("none", "gamma", "lognormal")
 
 #: Keys a Hydra node may carry that are not MDE settings.
 _HYDRA_KEYS = ("_target_", "_recursive_", "_convert_", "_partial_")
@@ -63,7 +63,10 @@ class MDEConfig:
     #: Gamma(3, 6) in the kernel's input units, outputscale Gamma(2, 0.15), noise Gamma(1.1, 0.05);
     #: the fit is then MAP). Why: free fits on the MDE's data go to lengthscales of tens of metres or
     #: an outputscale near 0 (BENCHMARKS.md, sessions 15-17 and 22); a prior keeps them in range
-    #: softly, where ``lengthscale_max`` cuts them off.
+    #: softly, where ``lengthscale_max`` cuts them off. "lognormal": BoTorch's defaults since 0.12
+    #: (Hvarfner et al. 2024): lengthscale / input range ~ LogNormal(sqrt 2 + log(d) / 2, sqrt 3), noise
+    #: LogNormal(-4, 1) on z-scored labels; against the small-data fits whose noise goes to the floor or
+    #: whose lengthscale goes to 0 (BENCHMARKS.md, sessions 32 and 39).
     hyperparameter_priors: str = "none"
     #: Most-likely heteroscedastic GP (True, the paper's) or a homoscedastic GP (False: one noise level; with
     #: ``label_max`` the pouring task's default, configs/mde/default.yaml).

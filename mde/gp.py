@@ -32,7 +32,7 @@ from gpytorch.kernels import MaternKernel, ScaleKernel
 from gpytorch.likelihoods import GaussianLikelihood
 from gpytorch.means import ConstantMean
 from gpytorch.mlls import ExactMarginalLogLikelihood
-from gpytorch.priors import GammaPrior
+from gpytorch.priors import GammaPrior, LogNormalPrior
 from linear_operator.utils.errors import NanError, NotPSDError
 from linear_operator.operators import DiagLinearOperator
 from torch import Tensor
@@ -399,6 +399,10 @@ def _kernel(nu: float, d: int, X_t: Tensor, lengthscale_max: float | None = None
     ``priors="gamma"``: BoTorch's SingleTaskGP default priors before 0.12, the library the paper
     used (``botorch.models.utils.gpytorch_modules.get_matern_kernel_with_gamma_prior``):
     lengthscale Gamma(3, 6) in the kernel's input units (mode 1/3), outputscale Gamma(2, 0.15).
+    ``priors="lognormal"``: BoTorch's default since 0.12, the dimension-scaled prior of Hvarfner et al.
+    (2024; ``get_covar_module_with_dim_scaled_prior``): lengthscale / range of its input over ``X_t``
+    ~ LogNormal(sqrt 2 + log(d) / 2, sqrt 3), i.e. BoTorch's unit-cube prior carried to the kernel's
+    input units (a flat input's range counts as 1); the outputscale stays free.
     """
     _check_priors(priors)
     if X_t.shape[0] > 1:
@@ -409,6 +413,10 @@ def _kernel(nu: float, d: int, X_t: Tensor, lengthscale_max: float | None = None
     std = torch.where(varies, raw_std, torch.ones_like(raw_std)).to(DTYPE)
     gamma = priors == "gamma"
     ls_prior = GammaPrior(3.0, 6.0) if gamma else None
+    if priors == "lognormal":
+        span = data_bounds(X_t.to(DTYPE)).diff(dim=0).reshape(d)
+        ls_prior = LogNormalPrior(loc=math.sqrt(2.0) + 0.5 * math.log(d) + span.log(),
+                                  scale=torch.full((d,), math.sqrt(3.0), dtype=DTYPE))
     if lengthscale_max is None:
         base = MaternKernel(nu=nu, ard_num_dims=d, lengthscale_prior=ls_prior)
         start = torch.where(varies, 2.0 * std, std)  # a constant input starts at 1
@@ -429,8 +437,13 @@ def _check_priors(priors: str) -> None:
 
 
 def _likelihood(noise_floor: float, start: float, priors: str) -> GaussianLikelihood:
-    """Learned constant noise; ``priors="gamma"`` adds BoTorch's old default Gamma(1.1, 0.05) noise prior."""
-    noise_prior = GammaPrior(1.1, 0.05) if priors == "gamma" else None
+    """Learned constant noise; ``priors="gamma"`` adds BoTorch's old default Gamma(1.1, 0.05) noise prior,
+    ``"lognormal"`` its current LogNormal(-4, 1) (``get_gaussian_likelihood_with_lognormal_prior``), both on the
+    noise variance of z-scored labels."""
+    noise_prior = {"gamma": lambda: GammaPrior(1.1, 0.05),
+                   "lognormal": lambda: LogNormalPrior(torch.tensor(-4.0, dtype=DTYPE),
+                                                       torch.tensor(1.0, dtype=DTYPE)),
+                   }.get(priors, lambda: None)()
     likelihood = GaussianLikelihood(noise_prior=noise_prior, noise_constraint=GreaterThan(noise_floor)).to(DTYPE)
     likelihood.noise = torch.tensor(start, dtype=DTYPE)
     return likelihood
@@ -469,7 +482,7 @@ def build_mean_gp(
     outputscale below by ``(latent_std_min / label std)^2``, so that the latent std far from the
     data is at least that whatever the labels' spread (the bound is saved with the model's state);
     ``latent_std_max`` bounds it above in the same way (``(latent_std_max / label std)^2``).
-    ``priors``: hyperparameter priors, "none" or "gamma" (see :func:`_kernel`).
+    ``priors``: hyperparameter priors, "none", "gamma" or "lognormal" (see :func:`_kernel`).
     """
     Y = y.reshape(-1, 1)
     likelihood = None

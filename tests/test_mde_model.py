@@ -232,10 +232,11 @@ def test_mll_closure_matches_gpytorch():
     torch.manual_seed(0)
     X, y = _data_4d(60, seed=5)
     X[7] = X[8]  # duplicate input
-    for nu, priors in ((0.5, "none"), (1.5, "none"), (2.5, "none"), (2.5, "gamma")):
+    for nu, priors in ((0.5, "none"), (1.5, "none"), (2.5, "none"), (2.5, "gamma"), (2.5, "lognormal")):
         for Yvar in (None, 0.001 + 0.01 * torch.rand(60, dtype=torch.float64)):
             m = build_mean_gp(X, y, nu=nu, bounds=data_bounds(X), noise_floor=1e-4, train_Yvar=Yvar, priors=priors)
-            assert len(list(m.named_priors())) == {"none": 0, "gamma": 3 if Yvar is None else 2}[priors]
+            assert len(list(m.named_priors())) == {"none": 0, "gamma": 3 if Yvar is None else 2,
+                                                 "lognormal": 2 if Yvar is None else 1}[priors]
             m.covar_module.base_kernel.lengthscale = torch.tensor([[0.3, 0.5, 2.0, 0.7]])
             m.mean_module.raw_constant.requires_grad_(True)
             m.train()
@@ -362,7 +363,7 @@ def test_label_max_fits_large_deviations_as_that_value():
 def test_gamma_priors_keep_lengthscales_in_range_and_survive_saving(tmp_path):
     """hyperparameter_priors="gamma": the MAP fit keeps every lengthscale within the Gamma(3, 6) prior's
     range (a few units) where the maximum-likelihood noise GP goes far beyond on an irrelevant feature;
-    the priors come back with a saved model (same predictions); a bad value names the field."""
+    the priors come back with a saved model (same predictions; "lognormal" too); a bad value names the field."""
     X, y = _data_4d(120, seed=5)
     ls = lambda gp: gp.covar_module.base_kernel.lengthscale.detach().reshape(-1)  # noqa: E731
     free = HeteroscedasticGPMDE(max_iters=2, **T1).fit(X, y)
@@ -374,5 +375,9 @@ def test_gamma_priors_keep_lengthscales_in_range_and_survive_saving(tmp_path):
     path = tmp_path / "mde.pt"
     gamma.save(path)
     torch.testing.assert_close(HeteroscedasticGPMDE.load(path).predict(X[:20]), gamma.predict(X[:20]))
-    with pytest.raises(ValueError, match=r"hyperparameter_priors must be one of \('none', 'gamma'\), got 'lognormal'"):
-        HeteroscedasticGPMDE(hyperparameter_priors="lognormal")
+    lognormal = HeteroscedasticGPMDE(max_iters=2, hyperparameter_priors="lognormal", **T1).fit(X, y)
+    lognormal.save(path)
+    torch.testing.assert_close(HeteroscedasticGPMDE.load(path).predict(X[:20]), lognormal.predict(X[:20]))
+    with pytest.raises(ValueError, match=r"hyperparameter_priors must be one of \('none', 'gamma', 'lognormal'\), "
+                                         r"got 'cauchy'"):
+        HeteroscedasticGPMDE(hyperparameter_priors="cauchy")

@@ -162,3 +162,27 @@ def test_the_ungrouped_mde_gives_acquisitions_the_same_factorisation():
     latent = mde.marginal_model.posterior(trajectories).variance
     torch.testing.assert_close(extra.variance, latent + 0.01)
     assert torch.isfinite(DiscountedMaxUCB(mde.marginal_model, c=0.1)(trajectories)).all()
+
+
+@pytest.mark.parametrize("case", ["noise_floor", "lengthscale_zero"])
+def test_lognormal_priors_keep_small_data_fits_off_the_degenerate_optima(case):
+    """Two move GPs of the paper protocol's first round (session 38's active_admission, seeds 3 and 1; the default
+    MDE, homoscedastic on labels capped at 0.1). Maximum likelihood puts the first's noise on the floor (1e-4 of
+    the label variance: the GP interpolates 24 moves, and far from them the std is the outputscale's) and one
+    lengthscale of the second at ~1e-7 of its input's range (a bad move explained by an odd volume fraction):
+    rounds whose test planner then found plans for 0.10 of the problems. BoTorch's current default priors
+    (``hyperparameter_priors="lognormal"``) keep both off those optima."""
+    d = torch.load(Path(__file__).parent / "data" / "mde_small_data_degenerate.pt")[case]
+    cfg = dict(heteroscedastic=False, label_max=0.1, num_threads=1)
+
+    def fitted(priors: str) -> tuple[float, float]:
+        gp = HeteroscedasticGPMDE(cfg, hyperparameter_priors=priors).fit(d["X"], d["y"])._fitted.mean_model
+        Xt = gp.train_inputs[0]
+        span = Xt.max(0).values - Xt.min(0).values
+        rel = (gp.covar_module.base_kernel.lengthscale.detach().ravel() / span.clamp_min(1e-12))[span > 0]
+        return float(gp.likelihood.noise), float(rel.min())
+
+    noise, rel_ls = fitted("none")
+    assert (noise < 2e-4) if case == "noise_floor" else (rel_ls < 1e-4)  # the degenerate fit this test is about
+    noise, rel_ls = fitted("lognormal")
+    assert noise > 1e-3 and rel_ls > 0.05
