@@ -440,10 +440,11 @@ def _likelihood(noise_floor: float, start: float, priors: str) -> GaussianLikeli
     """Learned constant noise; ``priors="gamma"`` adds BoTorch's old default Gamma(1.1, 0.05) noise prior,
     ``"lognormal"`` its current LogNormal(-4, 1) (``get_gaussian_likelihood_with_lognormal_prior``), both on the
     noise variance of z-scored labels."""
-    noise_prior = {"gamma": lambda: GammaPrior(1.1, 0.05),
-                   "lognormal": lambda: LogNormalPrior(torch.tensor(-4.0, dtype=DTYPE),
-                                                       torch.tensor(1.0, dtype=DTYPE)),
-                   }.get(priors, lambda: None)()
+    noise_prior = None
+    if priors == "gamma":
+        noise_prior = GammaPrior(1.1, 0.05)
+    elif priors == "lognormal":
+        noise_prior = LogNormalPrior(torch.tensor(-4.0, dtype=DTYPE), torch.tensor(1.0, dtype=DTYPE))
     likelihood = GaussianLikelihood(noise_prior=noise_prior, noise_constraint=GreaterThan(noise_floor)).to(DTYPE)
     likelihood.noise = torch.tensor(start, dtype=DTYPE)
     return likelihood
