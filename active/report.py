@@ -32,7 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-from collections import defaultdict
+from collections import Counter, defaultdict
 from itertools import combinations
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -117,13 +117,15 @@ def plot_learning_curves(rows: list[dict], path: Path, ceiling: Mapping[str, Any
     fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.8), dpi=110, sharey=True, squeeze=False)
     axes = axes[0]
     drawn: dict[str, tuple[float, str]] = {}
+    # methods run on different seed sets (a sweep extended for some methods only) are told apart in the legend
+    n_seeds = Counter(m for m, _s in {(r["method"], r["seed"]) for r in rows})
     for ax, (key, title) in zip(axes, panels):
         for m, curve in sorted(_curves(rows, key).items()):
             its = sorted(curve)
             mc = [mean_ci(curve[i]) for i in its]
             mean = np.array([a for a, _ in mc])
             half = np.array([b for _, b in mc])
-            ax.plot(its, mean, marker="o", ms=3, label=m)
+            ax.plot(its, mean, marker="o", ms=3, label=f"{m} ({n_seeds[m]} seed{'s' if n_seeds[m] != 1 else ''})")
             ax.fill_between(its, np.clip(mean - half, 0, 1), np.clip(mean + half, 0, 1), alpha=0.2)
         if ceiling is not None and key in CEILING_PANELS:
             line = ax.axhline(float(ceiling[CEILING_PANELS[key]]), color="k", ls="--", lw=1.0,

@@ -45,6 +45,21 @@ def test_report_aggregates_seeds_and_methods(tmp_path):
     assert len(read_csv(tmp_path / "rep" / "summary.csv")) == 2
 
 
+def test_learning_curve_legend_names_each_methods_seed_count(tmp_path, monkeypatch):
+    """A sweep extended for some methods only mixes seed counts on one figure: the legend says which is which."""
+    import active.report as rep
+
+    figures = []
+    monkeypatch.setattr(rep.safeio, "save_figure", lambda fig, path: figures.append(fig))
+    _write_run(tmp_path / "s0a", "active_admission", 0, [0.2, 0.6])
+    _write_run(tmp_path / "s1a", "active_admission", 1, [0.4, 0.8])
+    _write_run(tmp_path / "s0r", "random_plan", 0, [0.0, 0.2])
+    rows = rep.collect([tmp_path], "results.csv")
+    rep.plot_learning_curves(rows, tmp_path / "curves.png")
+    labels = [t.get_text() for t in figures[0].axes[-1].get_legend().get_texts()]
+    assert labels == ["active_admission (2 seeds)", "random_plan (1 seed)"]
+
+
 def test_trajectory_type_table_counts_per_iteration_and_overall(tmp_path):
     from active.report import trajectory_type_table
 
