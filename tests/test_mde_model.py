@@ -303,8 +303,8 @@ def test_latent_std_min_keeps_unvisited_inputs_unknown():
     y = 0.02 + 0.01 * torch.rand(40, generator=g, dtype=torch.float64)  # benign labels only
     far = torch.tensor([[1e8, -1e8, 1e8]], dtype=torch.float64)  # beyond any lengthscale (<= ~1e5, RAW_UPPER)
     latent_std = lambda m, Xq: m.model.posterior(Xq.unsqueeze(1)).variance.reshape(-1).sqrt()  # noqa: E731
-    free = HeteroscedasticGPMDE(**T1).fit(X, y)
-    floored = HeteroscedasticGPMDE(latent_std_min=0.05, **T1).fit(X, y)
+    free = HeteroscedasticGPMDE(hyperparameter_priors="none", **T1).fit(X, y)
+    floored = HeteroscedasticGPMDE(latent_std_min=0.05, hyperparameter_priors="none", **T1).fit(X, y)
     assert float(latent_std(free, far)) < 0.035  # mu + 2 sigma < d_max = 0.07 where there is no data
     assert float(latent_std(floored, far)) == pytest.approx(0.05, rel=1e-6)
     mean, std = floored.predict(far)
@@ -314,8 +314,8 @@ def test_latent_std_min_keeps_unvisited_inputs_unknown():
     # labels of a wide spread: the bound is far below the fitted outputscale and does not bind (the
     # optimiser's path through the bound's transform differs, so equal to the optimiser's tolerance)
     wide = y * 100.0
-    a = HeteroscedasticGPMDE(**T1).fit(X, wide).predict(far)
-    b = HeteroscedasticGPMDE(latent_std_min=0.05, **T1).fit(X, wide).predict(far)
+    a = HeteroscedasticGPMDE(hyperparameter_priors="none", **T1).fit(X, wide).predict(far)
+    b = HeteroscedasticGPMDE(latent_std_min=0.05, hyperparameter_priors="none", **T1).fit(X, wide).predict(far)
     torch.testing.assert_close(a, b, rtol=1e-3, atol=1e-9)
     with pytest.raises(ValueError, match=r"latent_std_min must be a finite number > 0, got 0"):
         HeteroscedasticGPMDE(latent_std_min=0)
@@ -366,7 +366,7 @@ def test_gamma_priors_keep_lengthscales_in_range_and_survive_saving(tmp_path):
     the priors come back with a saved model (same predictions; "lognormal" too); a bad value names the field."""
     X, y = _data_4d(120, seed=5)
     ls = lambda gp: gp.covar_module.base_kernel.lengthscale.detach().reshape(-1)  # noqa: E731
-    free = HeteroscedasticGPMDE(max_iters=2, **T1).fit(X, y)
+    free = HeteroscedasticGPMDE(max_iters=2, hyperparameter_priors="none", **T1).fit(X, y)
     gamma = HeteroscedasticGPMDE(max_iters=2, hyperparameter_priors="gamma", **T1).fit(X, y)
     assert ls(free.noise_model).max() > 5.0
     for gp in (gamma.model, gamma.noise_model):
