@@ -2,11 +2,12 @@
 
     python benchmarks/scratch_s39/mean_lift.py BASE_DIR NEW_DIR OLD=NEW [OLD=NEW ...]
 
-For each seed present in both folders (``seedN/METHOD/results.csv``), the mean over the given method pairs of
+For each seed that both folders hold for every given pair (``seedN/METHOD/results.csv``), the mean over the pairs of
 AUC(NEW_DIR/seedN/NEW) - AUC(BASE_DIR/seedN/OLD), the AUC being the mean test success over the rounds (as
 ``active.report``); then the mean over seeds, its 95 % Student-t half-width and the two-sided p of a one-sample t-test.
 Session 39: ``results/quick/csv results/quick_lognormal/csv active_balanced=active_balanced_lognormal
-random_plan=random_plan_lognormal active_admission=active_admission_lognormal``.
+random_plan=random_plan_lognormal active_admission=active_admission_lognormal`` (seeds 0-11: alpha has no others);
+session 40: the last two pairs (seeds 0-23).
 """
 
 import csv
@@ -22,7 +23,9 @@ def auc(path: Path) -> float:
 
 
 base, new, pairs = Path(sys.argv[1]), Path(sys.argv[2]), [a.split("=", 1) for a in sys.argv[3:]]
-seeds = sorted({p.name for p in new.glob("seed*")} & {p.name for p in base.glob("seed*")}, key=lambda s: int(s[4:]))
+seeds = sorted((s.name for s in new.glob("seed*") if all((new / s.name / n / "results.csv").exists()
+                                                          and (base / s.name / o / "results.csv").exists() for o, n in pairs)),
+               key=lambda s: int(s[4:]))
 lift = np.array([np.mean([auc(new / s / n / "results.csv") - auc(base / s / o / "results.csv") for o, n in pairs])
                  for s in seeds])
 half = stats.t.ppf(0.975, len(lift) - 1) * lift.std(ddof=1) / np.sqrt(len(lift))
