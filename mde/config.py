@@ -66,8 +66,9 @@ class MDEConfig:
     #: softly, where ``lengthscale_max`` cuts them off. "lognormal": BoTorch's defaults since 0.12
     #: (Hvarfner et al. 2024): lengthscale / input range ~ LogNormal(sqrt 2 + log(d) / 2, sqrt 3), noise
     #: LogNormal(-4, 1) on z-scored labels; against the small-data fits whose noise goes to the floor or
-    #: whose lengthscale goes to 0 (BENCHMARKS.md, sessions 32 and 39).
-    hyperparameter_priors: str = "none"
+    #: whose lengthscale goes to 0 (BENCHMARKS.md, sessions 32 and 39); the default since session 41, when it had
+    #: lifted the quick experiment significantly (session 40).
+    hyperparameter_priors: str = "lognormal"
     #: Most-likely heteroscedastic GP (True, the paper's) or a homoscedastic GP (False: one noise level; with
     #: ``label_max`` the pouring task's default, configs/mde/default.yaml).
     heteroscedastic: bool = True

@@ -343,20 +343,28 @@ def test_a_method_spec_enters_the_digest_only_when_it_differs_from_what_runs_had
         config_digest(base)  # tiny runs active_balanced and random_actions only
 
 
-def test_mde_heteroscedastic_option_is_the_default_mde_with_two_fields_changed():
-    """The default MDE (session 33) is homoscedastic with labels capped at 0.1; ``mde=heteroscedastic`` is the
-    paper's GP: every other field as ``mde=default``, the same run configuration (digest) as the two overrides
-    spelled out. ``mde=homoscedastic`` (session 31's name) is the default itself."""
+def test_mde_options_are_the_default_mde_with_named_fields_changed():
+    """The default MDE (sessions 33 and 41) is homoscedastic with labels capped at 0.1 and BoTorch's lognormal
+    priors; ``mde=heteroscedastic`` is the paper's GP, fitted by maximum likelihood as before session 41; every
+    other field as ``mde=default``, the same run configuration (digest) as the overrides spelled out.
+    ``mde=homoscedastic`` (session 31's name) is the default of sessions 33-40: maximum likelihood."""
     from hydra.utils import instantiate
 
     base, hetero = compose_config(["experiment=tiny"]), compose_config(["experiment=tiny", "mde=heteroscedastic"])
     assert (base["mde"]["heteroscedastic"], base["mde"]["label_max"]) == (False, 0.1)
+    assert base["mde"]["hyperparameter_priors"] == "lognormal"
     changed = {k for k in base["mde"] if base["mde"][k] != hetero["mde"].get(k)}
-    assert changed == {"heteroscedastic", "label_max"} and set(hetero["mde"]) == set(base["mde"])
+    assert changed == {"heteroscedastic", "label_max", "hyperparameter_priors"} and set(hetero["mde"]) == set(base["mde"])
     assert (hetero["mde"]["heteroscedastic"], hetero["mde"]["label_max"]) == (True, None)
-    spelled = compose_config(["experiment=tiny", "mde.heteroscedastic=true", "mde.label_max=null"])
+    spelled = compose_config(["experiment=tiny", "mde.heteroscedastic=true", "mde.label_max=null",
+                              "mde.hyperparameter_priors=none"])
     assert config_digest(hetero) == config_digest(spelled) != config_digest(base)
-    assert config_digest(compose_config(["experiment=tiny", "mde=homoscedastic"])) == config_digest(base)
+    homo = compose_config(["experiment=tiny", "mde=homoscedastic"])
+    assert {k for k in base["mde"] if base["mde"][k] != homo["mde"][k]} == {"hyperparameter_priors"}
+    assert config_digest(homo) == config_digest(compose_config(["experiment=tiny", "mde.hyperparameter_priors=none"]))
+    assert config_digest(homo) != config_digest(base)
     mde = instantiate(hetero["mde"], _convert_="all")
     assert mde.config.heteroscedastic is True and mde.config.label_max is None
-    assert instantiate(base["mde"], _convert_="all").config.heteroscedastic is False
+    assert mde.config.hyperparameter_priors == "none"
+    default = instantiate(base["mde"], _convert_="all").config
+    assert default.heteroscedastic is False and default.hyperparameter_priors == "lognormal"
