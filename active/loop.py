@@ -529,7 +529,7 @@ class MethodRun:
         reqs = [PlanRequest("candidates", prob.start, prob.goal, n=exp.candidates, beta=beta, d_max=exp.d_max,
                             seed=derive_seed(ctx.seed, self.method, "plan", it, c0 + j))
                 for j, prob in enumerate(chunk)]
-        sets = yield PlanNeed(reqs, mde)
+        sets = yield PlanNeed(reqs, mde if self.spec.plans_with_mde else None)
         self.plan_errors += sum(r.stats.termination == "error" for s in sets for r in s.runs)
         return sets
 

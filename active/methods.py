@@ -2,6 +2,8 @@
 
 * ``random_actions``: a fixed number of actions from the planner's action sampler (no planning);
 * ``random_plan``: a uniformly random candidate among the planner's candidates that reach the goal;
+* ``model_plan``: the same among candidates planned with the model alone (no MDE precondition): the non-adaptive
+  baseline, which asks whether the MDE's say in data collection helps at all;
 * ``active_cautious`` / ``active_mean`` / ``active_balanced``: the candidate that maximises the
   configured acquisition function (by default the paper's alpha with c = -0.1 / 0 / 0.1).
 
@@ -48,9 +50,11 @@ class Choice:
 
 class Method:
     """How a training trajectory is chosen. ``plans``: whether the planner's candidates are needed;
+    ``plans_with_mde``: whether they are planned under the MDE's precondition (False: the model alone);
     ``acquisition``: keyword arguments for the acquisition (None: the method uses none)."""
 
     plans: bool = True
+    plans_with_mde: bool = True
     acquisition: dict[str, Any] | None = None
 
     def choose(self, candidates: list, rng: np.random.Generator, random_actions: Callable[[], np.ndarray],
@@ -71,6 +75,13 @@ class RandomPlan(Method):
             return Choice(random_actions(), "fallback", 0)
         k = int(rng.integers(len(candidates)))
         return Choice(np.asarray(candidates[k].actions), "plan", len(candidates), chosen=k)
+
+
+class ModelPlan(RandomPlan):
+    """A random candidate of the planner with the model alone: the data the MDE learns from are then the trajectories
+    the model itself believes in, whatever the MDE has learnt (the ladder's ceiling data are of this kind)."""
+
+    plans_with_mde = False
 
 
 class ActiveChoice(Method):

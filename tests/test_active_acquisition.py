@@ -167,9 +167,9 @@ def test_default_acquisition_is_the_papers_alpha_and_methods_carry_c():
     assert compose_config([])["acquisition"] == {"_target_": "active.acquisition.DiscountedMaxUCB", "_partial_": True,
                                                  "gamma": 1.0}
     assert sorted(METHODS) == ["active_admission", "active_balanced", "active_cautious", "active_mean", "active_straddle",
-                               "active_thompson", "random_actions", "random_plan"]
+                               "active_thompson", "model_plan", "random_actions", "random_plan"]
     cs = {m: build_method(m).acquisition for m in METHODS}
-    assert cs == {"random_actions": None, "random_plan": None, "active_cautious": {"c": -0.1},
+    assert cs == {"random_actions": None, "random_plan": None, "model_plan": None, "active_cautious": {"c": -0.1},
                   "active_mean": {"c": 0.0}, "active_balanced": {"c": 0.1},
                   "active_straddle": {"_target_": "active.acquisition.TrajectoryStraddle", "kappa": 1.96, "gamma": 1.0},
                   "active_thompson": {"_target_": "active.acquisition.TrajectoryThompson", "seed": 0, "gamma": 1.0},

@@ -488,6 +488,33 @@ def test_experiment_config_lists_methods():
     assert ExperimentConfig(beta_switch_iteration=10).beta(10) == 1.0
 
 
+def test_model_plan_method_plans_its_candidates_without_the_mde():
+    """model_plan chooses like random_plan, among candidates the planner found with the model alone: its planning
+    need carries no MDE whatever the run's MDE is, random_plan's carries the run's; requests are otherwise the same
+    (kind, beta, seeds by (seed, method, iteration, problem))."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from active.loop import MethodRun, PlanNeed, derive_seed
+    from active.methods import ModelPlan, RandomPlan, build_method
+    from task.problems import Problem
+
+    assert isinstance(build_method("model_plan"), ModelPlan) and isinstance(build_method("model_plan"), RandomPlan)
+    probs = [Problem(start=np.array([0.3 + 0.01 * k, 0.2, 0.0, 1.0, 0.0]), goal=0.4) for k in range(2)]
+    mde = object()  # the run's fitted MDE (only passed on, never called here)
+
+    def need_of(method: str) -> PlanNeed:
+        run = SimpleNamespace(ctx=SimpleNamespace(exp=ExperimentConfig(), seed=7), method=method, plan_errors=0,
+                              spec=build_method(method))
+        return next(MethodRun._plan_chunk(run, probs, mde, 2, 0, 1.0))
+
+    mine, theirs = need_of("model_plan"), need_of("random_plan")
+    assert isinstance(mine, PlanNeed) and mine.mde is None and theirs.mde is mde
+    assert [(r.kind, r.beta, r.goal) for r in mine.requests] == [(r.kind, r.beta, r.goal) for r in theirs.requests]
+    assert [r.seed for r in mine.requests] == [derive_seed(7, "model_plan", "plan", 2, j) for j in range(2)]
+
+
 def test_model_plan_fallback_replaces_refused_rounds_by_plans_of_the_model_alone():
     """experiment.fallback=model_plan: only the problems whose candidates were all refused get a planner call,
     in one batch and with no MDE (seeded by (seed, method, iteration, problem)); a found plan replaces the random
