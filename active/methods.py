@@ -79,7 +79,7 @@ class RandomPlan(Method):
 
 class ModelPlan(RandomPlan):
     """A random candidate of the planner with the model alone: the data the MDE learns from are then the trajectories
-    the model itself believes in, whatever the MDE has learnt (the ladder's ceiling data are of this kind)."""
+    the model itself believes in, whatever the MDE has learnt (half of the ladder's ceiling data are of this kind)."""
 
     plans_with_mde = False
 
