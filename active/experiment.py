@@ -46,15 +46,15 @@ class ExperimentConfig:
     #: the planner accepts a predicted end state whose |v_tgt - goal| is within this (null: the world's goal
     #: tolerance). Smaller aims plans at the middle of the goal band, so that the executed pour, which
     #: scatters about the prediction, still lands inside the protocol's tolerance (not changed by this)
-    plan_goal_tol: float | None = None
+    plan_goal_tol: float | None = 0.025
     #: with a narrower plan_goal_tol: when the planner's budget runs out without a plan within plan_goal_tol, it
     #: returns the plan whose predicted end is closest to the goal within this band (null: no such fallback).
     #: So the aim costs no plans that the wider band finds (at most world.problems.tolerance)
-    plan_accept_tol: float | None = None
+    plan_accept_tol: float | None = 0.05
     #: the planner accepts a predicted end state whose spill is at most this (null: the world's max_spill).
     #: Smaller keeps a margin for pours that spill more than the model predicts (the precondition's d_max
     #: admits deviations several times the spill limit); success is always judged with world.problems.max_spill
-    plan_spill_limit: float | None = None
+    plan_spill_limit: float | None = 0.012
     #: what a method that plans executes when the planner found no candidate the MDE admits:
     #: "random_actions" (a random-action sequence, marked "fallback") or "model_plan" (a plan of the
     #: model alone, no MDE, marked "fallback_plan"; random actions only if that finds nothing either).

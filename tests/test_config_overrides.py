@@ -34,14 +34,14 @@ PLANNER_ALTERNATIVES = {
     "distance_weights": [1.0, 2.0, 1.0, 1.0], "clip_to_bounds": False, "prune_dead_states": False,
     "stuck_tilt": 0.1, "stuck_move": 0.01, "torch_threads": 2, "ompl_log_level": "warn",
 }
-#: for every derived planner key: an override of its source and the value the planner must get
+#: for every derived planner key: an override of its source (space-separated overrides) and the value the planner must get
 SOURCE_ALTERNATIVES = {
     "move_x": ("world.skills.move.x=[0.12,0.5]", (0.12, 0.5)),
     "move_y": ("world.skills.move.y=[0.07,0.3]", (0.07, 0.3)),
     "pour_theta": ("world.skills.pour.theta=[0.0,2.0]", (0.0, 2.0)),
     "pour_hold": ("world.skills.pour.hold=[0.0,0.8]", (0.0, 0.8)),
     "max_actions": ("world.skills.max_actions=5", 5),
-    "spill_limit": ("world.problems.max_spill=0.03", 0.03),
+    "spill_limit": ("world.problems.max_spill=0.03 experiment.plan_spill_limit=null", 0.03),  # the default's margin off
     "d_max": ("experiment.d_max=0.05", 0.05),
     "n_candidates": ("experiment.candidates=3", 3),
     "time_budget": ("experiment.planner_time_budget=5.0", 5.0),
@@ -53,7 +53,7 @@ EXPERIMENT_ALTERNATIVES = {
     "candidates": 3, "test_problems": 3, "random_actions_length": 3, "d_max": 0.05, "beta_train": [-1.0, 0.5],
     "beta_switch_iteration": 2, "beta_test": 1.5, "calibration_trajectories": 3, "planner_propagation_budget": 1234,
     "planner_time_budget": 5.0, "known_obstacles": False, "refine_steps": 2, "refine_lr": 0.01, "plan_goal_tol": 0.03,
-    "plan_spill_limit": 0.01, "plan_accept_tol": 0.05,
+    "plan_spill_limit": 0.01, "plan_accept_tol": 0.04,
 }
 
 
@@ -105,7 +105,7 @@ def test_a_planner_only_key_reaches_the_runs_planner_config(key):
 @pytest.mark.parametrize("key", sorted(DERIVED_PLANNER_KEYS))
 def test_a_derived_planner_key_follows_its_source_and_is_refused_on_the_planner_side(key):
     override, want = SOURCE_ALTERNATIVES[key]
-    _, _, pc, _ = settings([override])
+    _, _, pc, _ = settings(override.split())
     assert getattr(pc, key) == want
     src = DERIVED_PLANNER_KEYS[key]
     with pytest.raises(ValueError, match=rf"^planner\.{key} = .* differs from {re.escape(src)} = .*set {re.escape(src)}"):
@@ -173,11 +173,14 @@ def test_documented_overrides_arrive():
     assert settings(["planner.goal_bias=0.1"])[2].goal_bias == 0.1  # configs/planner/default.yaml
     assert settings(["planner.stuck_move=0.01"])[2].stuck_move == 0.01  # README: known static geometry
     assert settings(["experiment.plan_goal_tol=0.02"])[2].goal_tol == 0.02  # BENCHMARKS: ladder rungs
-    assert settings([])[2].goal_tol == 0.05  # null: the world's tolerance
+    pc = settings([])[2]  # the default aims at the band's middle with a spill margin (session 42)
+    assert (pc.goal_tol, pc.accept_tol, pc.spill_limit) == (0.025, 0.05, 0.012)
+    world_aim = ["experiment.plan_goal_tol=null", "experiment.plan_accept_tol=null", "experiment.plan_spill_limit=null"]
+    pc = settings(world_aim)[2]  # README: the planner of sessions 1-41, the world's band and limit
+    assert (pc.goal_tol, pc.accept_tol, pc.spill_limit) == (0.05, None, 0.02)
     assert settings(["experiment.plan_spill_limit=0.01"])[2].spill_limit == 0.01  # BENCHMARKS: session 17
-    assert settings([])[2].spill_limit == 0.02  # null: the world's max_spill
     pc = settings(["experiment.plan_goal_tol=0.02", "experiment.plan_accept_tol=0.05"])[2]  # BENCHMARKS: session 21
-    assert (pc.goal_tol, pc.accept_tol) == (0.02, 0.05) and settings([])[2].accept_tol is None
+    assert (pc.goal_tol, pc.accept_tol) == (0.02, 0.05)
     with pytest.raises(ValueError, match=r"experiment.plan_accept_tol = 0.06: allowed \(0, 0.05\]"):
         settings(["experiment.plan_accept_tol=0.06"])
     with pytest.raises(ValueError, match=r"experiment.plan_accept_tol = 0.01: allowed"):
@@ -282,16 +285,20 @@ OLD_TINY_EXPERIMENT = {
 @pytest.mark.parametrize("group, key, off, value", [
     ("mde", "lengthscale_max", None, 2), ("mde", "latent_std_min", None, 0.05), ("mde", "label_max", None, 0.3),
     ("mde", "latent_std_max", None, 0.05), ("mde", "noise_lengthscale_max", None, 2), ("mde", "hyperparameter_priors", "none", "gamma"),
-    ("experiment", "fallback", "random_actions", "model_plan")])
+    ("experiment", "fallback", "random_actions", "model_plan"), ("experiment", "plan_goal_tol", None, 0.025),
+    ("experiment", "plan_accept_tol", None, 0.05), ("experiment", "plan_spill_limit", None, 0.012)])
 def test_a_key_added_later_keeps_the_digest_at_its_off_value(group, key, off, value):
     """mde.lengthscale_max (session 15), mde.latent_std_min (session 17), mde.label_max and mde.noise_lengthscale_max
     (session 18), mde.hyperparameter_priors and experiment.fallback (session 23), mde.latent_std_max (session 37): the off value is the behaviour
     before the key existed, so a run directory written then keeps its digest; any other value is another
-    configuration."""
+    configuration. The planner's aim (session 21) is on by default since session 42: a recorded experiment without
+    the key reads back at its off value (what acted when it was recorded)."""
     new = compose_config(["experiment=tiny", f"{group}.{key}={'null' if off is None else off}"])
     assert new[group][key] == off
     old = {**new, group: {k: v for k, v in new[group].items() if k != key}}
     assert config_digest(old) == config_digest(new)
+    if group == "experiment":
+        assert upgrade_config(old)[group][key] == off
     assert config_digest(compose_config(["experiment=tiny", f"{group}.{key}={value}"])) != config_digest(new)
 
 
