@@ -1,7 +1,7 @@
 """Session 42: each method's area under the test-success curve in one folder of runs minus the same seed's in another,
 and the same for the model alone (each seed's ``model_only.csv``: its test problems' success rate).
 
-    python benchmarks/scratch_s42/paired_lift.py BASE_DIR NEW_DIR OLD=NEW [OLD=NEW ...]
+    PYTHONPATH=. python benchmarks/scratch_s42/paired_lift.py BASE_DIR NEW_DIR OLD=NEW [OLD=NEW ...]
 
 Per pair and for the model alone: both means, the mean paired difference over the seeds both folders hold, its 95 %
 Student-t half-width and two-sided p; last, the mean over the pairs per seed (as ``benchmarks/scratch_s39/mean_lift.py``).
@@ -16,6 +16,9 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from active.baseline import rates
+from active.report import mean_ci
+
 
 def auc(path: Path) -> float:
     """Mean test success over the rounds of one run (``active.report``'s area)."""
@@ -23,13 +26,13 @@ def auc(path: Path) -> float:
 
 
 def model_alone(path: Path) -> float:
-    """Share of the seed's test problems the model alone's plans solve."""
-    return float(np.mean([r["goal_reached"] == "True" for r in csv.DictReader(open(path))]))
+    """Share of the seed's test problems the model alone's plans solve (``active.baseline.rates``)."""
+    return rates(list(csv.DictReader(open(path))))[0]
 
 
 def line(name: str, old: np.ndarray, new: np.ndarray) -> np.ndarray:
     d = new - old
-    half = stats.t.ppf(0.975, len(d) - 1) * d.std(ddof=1) / np.sqrt(len(d))
+    _, half = mean_ci(d)
     print(f"{name:28s} {len(d):3d} seeds  base {old.mean():.3f}  new {new.mean():.3f}  diff {d.mean():+.3f} ± {half:.3f}"
           f"  (p = {stats.ttest_1samp(d, 0).pvalue:.3f}; {int((d > 0).sum())} up, {int((d < 0).sum())} down)")
     return d
@@ -44,6 +47,6 @@ diffs = [line(n, np.array([auc(base / s / o / "results.csv") for s in seeds]),
 line("the model alone", np.array([model_alone(base / s / "model_only.csv") for s in seeds]),
      np.array([model_alone(new / s / "model_only.csv") for s in seeds]))
 mean = np.mean(diffs, axis=0)
-half = stats.t.ppf(0.975, len(mean) - 1) * mean.std(ddof=1) / np.sqrt(len(mean))
+_, half = mean_ci(mean)
 print(f"mean over the {len(pairs)} methods: {mean.mean():+.3f} ± {half:.3f} (p = {stats.ttest_1samp(mean, 0).pvalue:.3f}); "
       f"{int((mean > 0).sum())} of {len(mean)} seeds up")
