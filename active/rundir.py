@@ -73,13 +73,14 @@ def upgrade_config(cfg: Mapping[str, Any]) -> dict:
     values of the keys :data:`active.loop.DERIVED_PLANNER_KEYS` now interpolates, which the run
     overwrote (and widened the state bounds to the action ranges); it is rewritten with the values
     that acted, so its results count as this configuration's. Any other configuration comes back as
-    a copy, with the experiment keys added since it was recorded at the values that acted then (off)."""
-    from .loop import DERIVED_PLANNER_KEYS, NEUTRAL_EXPERIMENT_SETTINGS
+    a copy, with the experiment and MDE keys added since it was recorded at the values that acted then (off)."""
+    from .loop import DERIVED_PLANNER_KEYS, NEUTRAL_EXPERIMENT_SETTINGS, NEUTRAL_MDE_SETTINGS
 
     c = as_json(cfg)
-    if isinstance(c.get("experiment"), dict):  # an experiment key added later acted at its off value before it
-        for k, off in NEUTRAL_EXPERIMENT_SETTINGS.items():  # existed, whatever today's default (the aim: session 42)
-            c["experiment"].setdefault(k, off)
+    for group, neutral in (("experiment", NEUTRAL_EXPERIMENT_SETTINGS), ("mde", NEUTRAL_MDE_SETTINGS)):
+        if isinstance(c.get(group), dict):  # a key added later acted at its off value before it existed, whatever
+            for k, off in neutral.items():  # today's default (the MDE's priors: session 41; the aim: session 42)
+                c[group].setdefault(k, off)
     p, w, e = c.get("planner"), c.get("world"), c.get("experiment")
     if not (isinstance(p, dict) and isinstance(p.get("problems"), dict) and isinstance(w, dict)
             and isinstance(e, dict)):

@@ -291,14 +291,13 @@ def test_a_key_added_later_keeps_the_digest_at_its_off_value(group, key, off, va
     """mde.lengthscale_max (session 15), mde.latent_std_min (session 17), mde.label_max and mde.noise_lengthscale_max
     (session 18), mde.hyperparameter_priors and experiment.fallback (session 23), mde.latent_std_max (session 37): the off value is the behaviour
     before the key existed, so a run directory written then keeps its digest; any other value is another
-    configuration. The planner's aim (session 21) is on by default since session 42: a recorded experiment without
-    the key reads back at its off value (what acted when it was recorded)."""
+    configuration. The MDE's priors (on by default since session 41) and the planner's aim (session 21; on by default
+    since session 42): a recorded block without the key reads back at its off value (what acted when it was recorded)."""
     new = compose_config(["experiment=tiny", f"{group}.{key}={'null' if off is None else off}"])
     assert new[group][key] == off
     old = {**new, group: {k: v for k, v in new[group].items() if k != key}}
     assert config_digest(old) == config_digest(new)
-    if group == "experiment":
-        assert upgrade_config(old)[group][key] == off
+    assert upgrade_config(old)[group][key] == off
     assert config_digest(compose_config(["experiment=tiny", f"{group}.{key}={value}"])) != config_digest(new)
 
 
