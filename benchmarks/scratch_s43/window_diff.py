@@ -1,12 +1,13 @@
 """Session 43: two methods' mean test success over a window of rounds, paired seed for seed within one folder of runs.
 
-    PYTHONPATH=. python benchmarks/scratch_s43/window_diff.py CSV_DIR A B [--rounds FIRST LAST] [--seeds FIRST LAST]
+    PYTHONPATH=. python benchmarks/scratch_s43/window_diff.py CSV_DIR A B [--rounds FIRST LAST] [--seeds FIRST LAST] [--by-round]
 
 CSV_DIR holds ``seed<k>/<method>/results.csv`` (``benchmarks/collect_csvs.py``). Prints both means, the mean of A - B
 over the seeds that hold both, its 95 % Student-t half-width (``active.report.mean_ci``), two-sided p and the count of
 seeds up and down. Rounds are 1-based and inclusive; all rounds give the report's area under the curve. Session 43:
 ``results/quick_centred/csv active_admission random_plan`` with ``--rounds 1 3 --seeds 12 23`` (the confirmation,
-written down before those seeds ran) and without options (the 24-seed area).
+written down before those seeds ran) and without options (the 24-seed area). ``--by-round`` (session 44) also prints
+each method's mean test success per round over the same seeds.
 """
 
 import argparse
@@ -30,6 +31,7 @@ p.add_argument("a")
 p.add_argument("b")
 p.add_argument("--rounds", type=int, nargs=2, metavar=("FIRST", "LAST"))
 p.add_argument("--seeds", type=int, nargs=2, metavar=("FIRST", "LAST"))
+p.add_argument("--by-round", action="store_true", help="also the mean test success per round of each method")
 args = p.parse_args()
 seeds = sorted(int(d.name[4:]) for d in args.csv_dir.glob("seed*")
                if all((d / m / "results.csv").is_file() for m in (args.a, args.b)))
@@ -46,3 +48,7 @@ window = f"rounds {args.rounds[0]}-{args.rounds[1]}" if args.rounds else "all ro
 print(f"{window}, seeds {seeds[0]}-{seeds[-1]} ({len(seeds)}): {args.a} {mean[args.a].mean():.3f}  {args.b} "
       f"{mean[args.b].mean():.3f}  difference {d.mean():+.3f} ± {half:.3f} (p = {stats.ttest_1samp(d, 0).pvalue:.3f}; "
       f"{int((d > 0).sum())} up, {int((d < 0).sum())} down)")
+if args.by_round:
+    for m in (args.a, args.b):
+        per = np.array([successes(args.csv_dir / f"seed{s}" / m / "results.csv") for s in seeds])
+        print(f"  {m} by round: " + " ".join(f"{x:.2f}" for x in per.mean(0)))
