@@ -40,8 +40,8 @@ if args.seeds:
 if len(seeds) < 2:
     raise SystemExit(f"{args.csv_dir}: {len(seeds)} seed(s) hold both {args.a} and {args.b}; need at least 2")
 lo, hi = (args.rounds[0] - 1, args.rounds[1]) if args.rounds else (0, None)
-mean = {m: np.array([successes(args.csv_dir / f"seed{s}" / m / "results.csv")[lo:hi].mean() for s in seeds])
-        for m in (args.a, args.b)}
+curves = {m: [successes(args.csv_dir / f"seed{s}" / m / "results.csv") for s in seeds] for m in (args.a, args.b)}
+mean = {m: np.array([c[lo:hi].mean() for c in cs]) for m, cs in curves.items()}
 d = mean[args.a] - mean[args.b]
 _, half = mean_ci(d)
 window = f"rounds {args.rounds[0]}-{args.rounds[1]}" if args.rounds else "all rounds"
@@ -49,6 +49,5 @@ print(f"{window}, seeds {seeds[0]}-{seeds[-1]} ({len(seeds)}): {args.a} {mean[ar
       f"{mean[args.b].mean():.3f}  difference {d.mean():+.3f} ± {half:.3f} (p = {stats.ttest_1samp(d, 0).pvalue:.3f}; "
       f"{int((d > 0).sum())} up, {int((d < 0).sum())} down)")
 if args.by_round:
-    for m in (args.a, args.b):
-        per = np.array([successes(args.csv_dir / f"seed{s}" / m / "results.csv") for s in seeds])
-        print(f"  {m} by round: " + " ".join(f"{x:.2f}" for x in per.mean(0)))
+    for m, cs in curves.items():
+        print(f"  {m} by round: " + " ".join(f"{x:.2f}" for x in np.mean(cs, 0)))
