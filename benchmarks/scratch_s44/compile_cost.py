@@ -6,7 +6,7 @@ Builds N (default 6) two-environment solvers of the tests' size one after anothe
 cups and advanced 0.1 s twice, and prints the seconds of each part. The first advance of a solver compiles its kernels,
 or loads them from Taichi's offline cache (~/.cache/taichi), whose entries are per field tree, so the k-th solver of a
 process hits the cache only if some earlier process built k solvers too; the second advance is the simulation itself.
-Session 44 (a fresh machine): cached ~2 s, not cached 24-28 s, simulating 0.1 s 0.01 s.
+Session 44 (a fresh machine): cached ~2 s, not cached 24 s, simulating 0.1 s 0.01 s.
 """
 import sys
 import time
