@@ -39,8 +39,10 @@ log = logging.getLogger(__name__)
 
 _WALL = -1  # closest-feature index for the tank walls
 #: CPU: particles per environment above which fewer environments than threads run split over the threads
-#: (``MPMSolver.step``: each environment's particle-to-grid split into row slabs, one per thread).
-_SPLIT_ENV_PARTICLES = 32768
+#: (``MPMSolver.step``: each environment's particle-to-grid split into row slabs, one per thread). On 2 cores the
+#: split substep measured 1.0-1.5x the one-task path at 8,192 and 16,000 particles and 0.8-1.1x at 4,563
+#: (``benchmarks.sim_split``, BENCHMARKS.md session 45); the worlds' scenes (at most 2,048) always run one task each.
+_SPLIT_ENV_PARTICLES = 6000
 #: m added to every collider's culling bounds, so that float32 rounding never culls a point inside a collider
 _CULL_MARGIN = 1e-3
 
@@ -82,7 +84,6 @@ class MPMSolver:
         # same (tests/test_sim_solver.py).
         self.threads = int(ti.lang.impl.current_cfg().cpu_max_num_threads) if self.arch == "cpu" else 1
         self._env_block = max(-(-self.B // self.threads), 512)
-        self._row_block = max(-(-self.B * self.res[0] // self.threads), 512)
         #: slabs of the split path (``_substep_split``): one per thread, at least 2 (so that one thread runs it too: tests)
         self._slabs = max(self.threads, 2)
         self._n_running = self.B
@@ -604,13 +605,18 @@ class MPMSolver:
     def _for_active_nodes(self, b, i, fn: ti.template()):
         """Apply ``fn`` to the nodes of row (b, i) inside environment b's active box."""
         if self.box_cur[b][0] <= i and i <= self.box_cur_hi[b][0]:
-            if ti.static(self.dim == 2):
-                for j in range(self.box_cur[b][1], self.box_cur_hi[b][1] + 1):
-                    fn(ti.Vector([b, i, j]))
-            else:
-                for j in range(self.box_cur[b][1], self.box_cur_hi[b][1] + 1):
-                    for k in range(self.box_cur[b][2], self.box_cur_hi[b][2] + 1):
-                        fn(ti.Vector([b, i, j, k]))
+            self._for_box_row(b, i, self.box_cur[b], self.box_cur_hi[b], fn)
+
+    @ti.func
+    def _for_box_row(self, b, i, lo, hi, fn: ti.template()):
+        """Apply ``fn`` to the nodes (b, i, j[, k]) of row i with lo <= (j[, k]) <= hi."""
+        if ti.static(self.dim == 2):
+            for j in range(lo[1], hi[1] + 1):
+                fn(ti.Vector([b, i, j]))
+        else:
+            for j in range(lo[1], hi[1] + 1):
+                for k in range(lo[2], hi[2] + 1):
+                    fn(ti.Vector([b, i, j, k]))
 
     @ti.func
     def _for_box_nodes(self, b, fn: ti.template()):
@@ -623,6 +629,11 @@ class MPMSolver:
         """Empty the environment's box (its particle-to-grid fills it) and move its bodies."""
         self.box_cur[b] = ti.Vector([self.res[d] for d in ti.static(range(self.dim))])
         self.box_cur_hi[b] = ti.Vector.zero(ti.i32, self.dim)
+        self._move_bodies(b)
+
+    @ti.func
+    def _move_bodies(self, b):
+        """Move environment b's kinematic bodies by their prescribed velocities over one substep."""
         for k in range(self.NB):
             self.body_pos[b, k] += self.cfg.dt * self.body_vel[b, k]
             self.body_rot[b, k] += self.cfg.dt * self.body_omega[b, k]
@@ -697,15 +708,21 @@ class MPMSolver:
     @ti.kernel
     def _substep_split(self, n_running: ti.i32):
         """CPU, fewer running environments than threads: one substep with each stage split over the
-        threads, in three parallel loops (each a barrier; fewer barriers matter more than balance here).
+        threads, in two parallel loops (each ends at a barrier, and on a small scene the barriers, not the
+        balance, decide the speed) with serial steps between them, which run on the launching thread.
 
-        Particle to grid gives thread t the grid rows of slab t (split_row[b, t] .. split_row[b, t + 1] - 1;
-        slab 0 and the last are open-ended, so the slabs always cover the grid): it clears the rows of the
-        last box in its slab, then reads all particles in index order and adds only to its own rows, so each
-        node receives the same additions in the same order as in ``_env_grid_phase``: the results are the
-        same, bit for bit. Where the slabs split the rows only changes the balance: grid to particle counts
-        each thread's particles per row, and the serial step between places the next substep's slabs."""
+        Thread t owns the grid rows of slab t (split_row[b, t] .. split_row[b, t + 1] - 1; slab 0 and the last
+        are open-ended, so the slabs always cover the grid). In the first parallel loop it clears the rows of
+        the last box in its slab, reads all particles in index order and adds only to its own rows, so each
+        node receives the same additions in the same order as in ``_env_grid_phase``, then updates its rows'
+        nodes (no other thread wrote them: the nodes outside the box of those it wrote are empty, which the
+        update leaves alone), so the results are the same, bit for bit. Where the slabs split the rows only
+        changes the balance: grid to particle counts each thread's particles per row, and the serial step
+        between places the next substep's slabs."""
         big = ti.static(1 << 20)
+        ti.loop_config(serialize=True)
+        for k in range(n_running):  # the grid update reads this substep's collider poses
+            self._move_bodies(self.run_order[k])
         for q in range(self._slabs * self._env_block):
             t = q // self._env_block
             k = q % self._env_block
@@ -724,17 +741,17 @@ class MPMSolver:
                         lo = ti.min(lo, base)
                         hi = ti.max(hi, base + 2)
                 self.part_lo[b, t], self.part_hi[b, t] = lo, hi
+                for i in range(ti.max(r0, lo[0]), ti.min(r1, hi[0] + 1)):
+                    self._for_box_row(b, i, lo, hi, self._update_node)
+        ti.loop_config(serialize=True)
         for k in range(n_running):
             b = self.run_order[k]
-            self._begin_env(b)  # moves the bodies (particle to grid does not read them) and empties the box
+            self.box_cur[b] = ti.Vector([self.res[d] for d in ti.static(range(self.dim))])
+            self.box_cur_hi[b] = ti.Vector.zero(ti.i32, self.dim)
             for t in range(self._slabs):  # every particle was scattered by some thread: the box is the union
                 self.box_cur[b] = ti.min(self.box_cur[b], self.part_lo[b, t])
                 self.box_cur_hi[b] = ti.max(self.box_cur_hi[b], self.part_hi[b, t])
             self._place_slabs(b)
-        for q in range(self.threads * self._row_block):
-            r = self._interleaved(q, self._row_block, n_running * self.res[0])
-            if r >= 0:
-                self._for_active_nodes(self.run_order[r // self.res[0]], r % self.res[0], self._update_node)
         for q in range(self._slabs * self._env_block):  # thread t: the t-th share of each environment's particles
             t = q // self._env_block
             k = q % self._env_block
@@ -771,8 +788,8 @@ class MPMSolver:
     @ti.func
     def _interleaved(self, q, block: ti.template(), count):
         """Item (0 .. count - 1) of CPU loop index q over ``threads x block`` (block >= count / threads), or
-        -1: thread t's block holds items t, t + T, t + 2T, ... (``__init__``). Environments (block
-        ``_env_block``, count B or the running ones) and grid rows (``_row_block``) are spread this way."""
+        -1: thread t's block holds items t, t + T, t + 2T, ... (``__init__``): how environments (block
+        ``_env_block``, count B or the running ones) are spread."""
         t = q // block
         k = q % block
         j = k * self.threads + t
