@@ -43,6 +43,12 @@ _WALL = -1  # closest-feature index for the tank walls
 #: split substep measured 1.0-1.5x the one-task path at 8,192 and 16,000 particles and 0.8-1.1x at 4,563
 #: (``benchmarks.sim_split``, BENCHMARKS.md session 45); the worlds' scenes (at most 2,048) always run one task each.
 _SPLIT_ENV_PARTICLES = 6000
+#: dimensions whose particle-grid transfers run factored: the stencil's per-node affine terms (mv + A (o - fx) dx to
+#: the grid, sum w g_v (o - fx)^T back) as sums over the offset o's digits, additions instead of matrix products.
+#: The same equations, rounded differently: 1.6-1.75x the one-task speed of the 3D dam break (16,000 particles,
+#: 27-node stencil; BENCHMARKS.md session 45). 2D keeps the direct form: it measured no faster there (the 9-node
+#: stencil's arithmetic is not what a pouring world's substep waits on) and the shipped source data are its bits.
+_FACTORED_TRANSFERS = (3,)
 #: m added to every collider's culling bounds, so that float32 rounding never culls a point inside a collider
 _CULL_MARGIN = 1e-3
 
@@ -555,18 +561,31 @@ class MPMSolver:
         affine = affine_momentum(self.J[b, p], self.C[b, p], self.p_mass, self.p_vol, self.bulk,
                                  self.cfg.viscosity, dt, inv_dx, ti.f32, self.dim)
         mv = self.p_mass * self.v[b, p]
+        # 3D (_FACTORED_TRANSFERS): mv + affine (offset - fx) dx = c0 + affine offset dx, the second term a sum
+        # of the columns of affine dx (offset_d in {0, 1, 2}): additions only, shared between the 27 nodes
+        c0 = mv - affine @ (fx * dx)
+        a_dx = [ti.Vector([affine[r, d] * dx for r in ti.static(range(self.dim))]) for d in ti.static(range(self.dim))]
         for offset in ti.static(ti.grouped(ti.ndrange(*([3] * self.dim)))):
-            dpos = (offset - fx) * dx
             weight = 1.0
             for d in ti.static(range(self.dim)):
                 weight *= w[offset[d]][d]
+            mom = mv
+            if ti.static(self.dim in _FACTORED_TRANSFERS):
+                mom = c0
+                for d in ti.static(range(self.dim)):
+                    if ti.static(offset[d] == 1):
+                        mom = mom + a_dx[d]
+                    elif ti.static(offset[d] == 2):
+                        mom = mom + 2.0 * a_dx[d]
+            else:
+                mom = mv + affine @ ((offset - fx) * dx)
             gi = self._gidx(b, base + offset)
             if ti.static(self.serial_p2g):  # this node's scatter runs on one thread: plain adds
                 if not ti.static(rows) or (r0 <= gi[1] and gi[1] < r1):
-                    self.grid_v[gi] = self.grid_v[gi] + weight * (mv + affine @ dpos)
+                    self.grid_v[gi] = self.grid_v[gi] + weight * mom
                     self.grid_m[gi] = self.grid_m[gi] + weight * self.p_mass
             else:
-                self.grid_v[gi] += weight * (mv + affine @ dpos)
+                self.grid_v[gi] += weight * mom
                 self.grid_m[gi] += weight * self.p_mass
         return base
 
@@ -811,8 +830,8 @@ class MPMSolver:
         new_v = ti.Vector.zero(ti.f32, dim)
         new_C = ti.Matrix.zero(ti.f32, dim, dim)
         mass_near = 0.0
+        wgo = ti.Matrix.zero(ti.f32, dim, dim)  # 3D: sum of weight g_v offset^T (C below; _FACTORED_TRANSFERS)
         for offset in ti.static(ti.grouped(ti.ndrange(*([3] * dim)))):
-            dpos = offset - fx
             weight = 1.0
             for d in ti.static(range(dim)):
                 weight *= w[offset[d]][d]
@@ -820,8 +839,18 @@ class MPMSolver:
             g_v = self.grid_v[gi]
             if ti.static(self.cfg.volume_correction):
                 mass_near += weight * self.grid_m[gi]
-            new_v += weight * g_v
-            new_C += 4.0 / dx * weight * g_v.outer_product(dpos)
+            if ti.static(dim in _FACTORED_TRANSFERS):
+                wg = weight * g_v
+                new_v += wg
+                for d in ti.static(range(dim)):
+                    if ti.static(offset[d] > 0):
+                        for r in ti.static(range(dim)):
+                            wgo[r, d] += wg[r] if ti.static(offset[d] == 1) else 2.0 * wg[r]
+            else:
+                new_v += weight * g_v
+                new_C += 4.0 / dx * weight * g_v.outer_product(offset - fx)
+        if ti.static(dim in _FACTORED_TRANSFERS):  # sum of weight g_v (offset - fx)^T, times 4 / dx
+            new_C = 4.0 / dx * (wgo - new_v.outer_product(fx))
         xn = self.x[b, p] + dt * new_v
         phi, idx = self._contact(b, xn)
         if phi < 0:

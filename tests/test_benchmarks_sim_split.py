@@ -18,5 +18,6 @@ def test_both_paths_run_the_same_scene_to_the_same_bits(tmp_path):
     res = main(["--dx", "0.02", "--substeps", "20", "--rounds", "1", "--out", str(out)])
     (row,) = res["rows"]
     assert row["particles"] > 0 and row["bit_identical"]
-    assert set(row["particle_substeps_per_s"]) == {"one_task", "split"}
+    assert set(row["particle_substeps_per_s"]) == {"one_task", "split", "direct"}
+    assert row["direct_max_position_difference_m"] > 0  # the direct transfers are another rounding of the same flow
     assert json.loads(out.read_text())["rows"][0]["bit_identical"]
