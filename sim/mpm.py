@@ -45,8 +45,8 @@ _WALL = -1  # closest-feature index for the tank walls
 _SPLIT_ENV_PARTICLES = 6000
 #: dimensions whose particle-grid transfers run factored: the stencil's per-node affine terms (mv + A (o - fx) dx to
 #: the grid, sum w g_v (o - fx)^T back) as sums over the offset o's digits, additions instead of matrix products.
-#: The same equations, rounded differently: 1.6-1.75x the one-task speed of the 3D dam break (16,000 particles,
-#: 27-node stencil; BENCHMARKS.md session 45). 2D keeps the direct form: it measured no faster there (the 9-node
+#: The same equations, rounded differently: 1.45-1.95x the one-task speed of the 3D dam break (16,000-128,000
+#: particles, 27-node stencil; ``benchmarks.sim_split``, BENCHMARKS.md session 45). 2D keeps the direct form: it measured no faster there (the 9-node
 #: stencil's arithmetic is not what a pouring world's substep waits on) and the shipped source data are its bits.
 _FACTORED_TRANSFERS = (3,)
 #: m added to every collider's culling bounds, so that float32 rounding never culls a point inside a collider
@@ -563,6 +563,7 @@ class MPMSolver:
         mv = self.p_mass * self.v[b, p]
         # 3D (_FACTORED_TRANSFERS): mv + affine (offset - fx) dx = c0 + affine offset dx, the second term a sum
         # of the columns of affine dx (offset_d in {0, 1, 2}): additions only, shared between the 27 nodes
+        # (in 2D c0 and a_dx go unused, and the compiler drops them)
         c0 = mv - affine @ (fx * dx)
         a_dx = [ti.Vector([affine[r, d] * dx for r in ti.static(range(self.dim))]) for d in ti.static(range(self.dim))]
         for offset in ti.static(ti.grouped(ti.ndrange(*([3] * self.dim)))):
