@@ -46,8 +46,9 @@ _SPLIT_ENV_PARTICLES = 6000
 #: dimensions whose particle-grid transfers run factored: the stencil's per-node affine terms (mv + A (o - fx) dx to
 #: the grid, sum w g_v (o - fx)^T back) as sums over the offset o's digits, additions instead of matrix products.
 #: The same equations, rounded differently: 1.45-1.95x the one-task speed of the 3D dam break (16,000-128,000
-#: particles, 27-node stencil; ``benchmarks.sim_split``, BENCHMARKS.md session 45). 2D keeps the direct form: it measured no faster there (the 9-node
-#: stencil's arithmetic is not what a pouring world's substep waits on) and the shipped source data are its bits.
+#: particles, 27-node stencil; ``benchmarks.sim_split``, BENCHMARKS.md session 45). 2D keeps the direct form for now:
+#: the shipped source data and every stored result are its bits. Factored, the default world's scene ran 1.11-1.36x
+#: faster at B = 32 (``benchmarks/scratch_s45/factored_2d.sh``); switching costs regenerating the shipped data.
 _FACTORED_TRANSFERS = (3,)
 #: m added to every collider's culling bounds, so that float32 rounding never culls a point inside a collider
 _CULL_MARGIN = 1e-3
