@@ -40,8 +40,9 @@ log = logging.getLogger(__name__)
 _WALL = -1  # closest-feature index for the tank walls
 #: CPU: particles per environment above which fewer environments than threads run split over the threads
 #: (``MPMSolver.step``: each environment's particle-to-grid split into row slabs, one per thread). On 2 cores the
-#: split substep measured 1.0-1.5x the one-task path at 8,192 and 16,000 particles and 0.8-1.1x at 4,563
-#: (``benchmarks.sim_split``, BENCHMARKS.md session 45); the worlds' scenes (at most 2,048) always run one task each.
+#: split substep ran 1.1-1.35x the one-task path at 16,000 particles, 1.0-1.45x at 8,192 and 0.8-1.1x at 4,563 (best
+#: round against best round; ``benchmarks.sim_split``, BENCHMARKS.md session 45); the worlds' scenes (at most 2,048)
+#: always run one task each.
 _SPLIT_ENV_PARTICLES = 6000
 #: dimensions whose particle-grid transfers run factored: the stencil's per-node affine terms (mv + A (o - fx) dx to
 #: the grid, sum w g_v (o - fx)^T back) as sums over the offset o's digits, additions instead of matrix products.
@@ -571,7 +572,7 @@ class MPMSolver:
             weight = 1.0
             for d in ti.static(range(self.dim)):
                 weight *= w[offset[d]][d]
-            mom = mv
+            mom = mv  # declared here for Taichi's scoping; each branch below sets it
             if ti.static(self.dim in _FACTORED_TRANSFERS):
                 mom = c0
                 for d in ti.static(range(self.dim)):
@@ -648,9 +649,14 @@ class MPMSolver:
     @ti.func
     def _begin_env(self, b):
         """Empty the environment's box (its particle-to-grid fills it) and move its bodies."""
+        self._empty_box(b)
+        self._move_bodies(b)
+
+    @ti.func
+    def _empty_box(self, b):
+        """Environment b's box of written nodes, emptied (lo = res, hi = 0): running mins / maxes fill it."""
         self.box_cur[b] = ti.Vector([self.res[d] for d in ti.static(range(self.dim))])
         self.box_cur_hi[b] = ti.Vector.zero(ti.i32, self.dim)
-        self._move_bodies(b)
 
     @ti.func
     def _move_bodies(self, b):
@@ -767,8 +773,7 @@ class MPMSolver:
         ti.loop_config(serialize=True)
         for k in range(n_running):
             b = self.run_order[k]
-            self.box_cur[b] = ti.Vector([self.res[d] for d in ti.static(range(self.dim))])
-            self.box_cur_hi[b] = ti.Vector.zero(ti.i32, self.dim)
+            self._empty_box(b)
             for t in range(self._slabs):  # every particle was scattered by some thread: the box is the union
                 self.box_cur[b] = ti.min(self.box_cur[b], self.part_lo[b, t])
                 self.box_cur_hi[b] = ti.max(self.box_cur_hi[b], self.part_hi[b, t])
