@@ -201,7 +201,8 @@ class TrainConfig:
     weight_decay: float = 1.0e-5
     patience: int = 200
     lr_schedule: str = "cosine"
-    #: torch intra-op threads while training (restored afterwards); fixed for reproducibility
+    #: torch intra-op threads while training (restored afterwards; :func:`task.threads.torch_threads`); at least 1:
+    #: a fixed count keeps training bit-reproducible
     threads: int = 1
 
     def __post_init__(self) -> None:

@@ -28,10 +28,12 @@ from typing import Any, Callable, Iterator, Mapping
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
 import configs
 import safeio
 from task import STATE_NAMES
+from task.threads import torch_threads
 
 from .config import (TRAIN_COMMAND, DataConfig, DynamicsConfig, DynamicsError, ModelConfig, TrainConfig,
                      data_hash, model_hash, single_models)
@@ -68,10 +70,6 @@ def fit(ds: Transitions, model_cfg: ModelConfig | None = None, train_cfg: TrainC
     label); early stopping on the validation loss restores the best epoch.
     ``model.info["training"]`` gets the losses, epochs, wall time and validation errors.
     """
-    from tqdm.auto import tqdm
-
-    from planner.rrt import torch_threads  # imported here: training needs no OMPL otherwise
-
     wcfg = load_world(DataConfig(), world_cfg)
     cup = wcfg.controlled_cup
     w = {"pose": 1.0, "volume": 1.0, **dict(wcfg.distance_weights)}

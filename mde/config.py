@@ -100,9 +100,9 @@ class MDEConfig:
     predict_dtype: str = "float64"  # float32 is faster but lost all precision on real simulator features
     #: Rows per chunk in batched prediction (keeps the kernel block in cache).
     predict_chunk: int = 1024
-    #: Torch intra-op threads during fit/predict (restored afterwards); 0 keeps torch's setting.
-    #: On a CPU shared with other busy processes 1 is faster and much steadier than 2 (OpenMP
-    #: threads wait on each other); on an idle machine torch's default is best.
+    #: Torch intra-op threads during fit/predict (restored afterwards; :func:`task.threads.torch_threads`);
+    #: 0 keeps torch's setting. On a CPU shared with other busy processes 1 is faster and much steadier
+    #: than 2 (OpenMP threads wait on each other); on an idle machine torch's default is best.
     num_threads: int = 0
     #: Index of a categorical feature column (e.g. the action's skill): :class:`mde.GroupedMDE`
     #: fits one independent GP per value of that column. Skills' parameters mean different

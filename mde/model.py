@@ -28,10 +28,9 @@ import math
 import os
 import time
 import warnings
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Mapping
+from typing import Any, Mapping
 
 import torch
 
@@ -43,6 +42,7 @@ from linear_operator.utils.errors import NanError, NotPSDError
 from torch import Tensor
 
 import safeio
+from task.threads import torch_threads
 
 from .kernel_cache import AffineMean, KernelCache
 from .config import MDEConfig
@@ -491,20 +491,6 @@ class HeteroscedasticGPMDE:
     def __repr__(self) -> str:
         kind = "heteroscedastic" if self._config.heteroscedastic else "homoscedastic"
         return f"HeteroscedasticGPMDE({kind}, nu={self._config.nu}, n_train={self.n_train}, d={self._n_features})"
-
-
-@contextmanager
-def torch_threads(n: int) -> Iterator[None]:
-    """Temporarily run torch with ``n`` intra-op threads (0: leave the setting alone)."""
-    old = torch.get_num_threads()
-    if n <= 0 or n == old:
-        yield
-        return
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(old)
 
 
 # -- helpers ---------------------------------------------------------------------------------------

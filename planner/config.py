@@ -96,10 +96,10 @@ class PlannerConfig:
     #: a move whose predicted end position is farther than this (m) from its commanded target got
     #: stuck on the way (the simulator ends the trajectory there): pruned like a dead state
     stuck_move: float = 0.005
-    #: torch intra-op threads while planning (restored afterwards); None leaves torch alone.
-    #: 1 is fastest for the small batches the planner evaluates and avoids thread-pool stalls
-    #: on busy 2-core machines
-    torch_threads: int | None = 1
+    #: torch intra-op threads while planning (restored afterwards; :func:`task.threads.torch_threads`);
+    #: 0 leaves torch alone. 1 is fastest for the small batches the planner evaluates and avoids
+    #: thread-pool stalls on busy 2-core machines
+    torch_threads: int = 1
     #: OMPL log level while planning: "none", "error", "warn", "info", "debug"
     ompl_log_level: str = "error"
 
@@ -162,8 +162,11 @@ class PlannerConfig:
             raise ValueError(f"last_step_proposals={self.last_step_proposals} must be >= 1")
         if not 1 <= int(self.batch_min) <= int(self.batch_max):
             raise ValueError(f"need 1 <= batch_min <= batch_max, got {self.batch_min}, {self.batch_max}")
-        if self.torch_threads is not None and int(self.torch_threads) < 1:
-            raise ValueError(f"torch_threads={self.torch_threads} must be >= 1 or None")
+        if not isinstance(self.torch_threads, (int, float)) or isinstance(self.torch_threads, bool) or \
+                int(self.torch_threads) != self.torch_threads or self.torch_threads < 0:
+            raise ValueError(f"torch_threads={self.torch_threads!r} must be an integer >= 1, or 0 to leave torch's "
+                             "setting alone")
+        set_("torch_threads", int(self.torch_threads))
         if self.ompl_log_level not in _LOG_LEVELS:
             raise ValueError(f"ompl_log_level={self.ompl_log_level!r} not one of {sorted(_LOG_LEVELS)}")
         for k in ("max_actions", "n_candidates", "propagation_budget", "seed", "batch_min", "batch_max",

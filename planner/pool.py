@@ -8,7 +8,7 @@ nothing depends on which process runs it or in which order, so a :class:`PlanPoo
 request order, the results ``Planner(dynamics, mde, config).plan(...)`` / ``.plan_candidates(...)``
 give in-process, bit for bit (see ``tests/test_planner_pool.py``). Bit-identity assumes the
 config's ``torch_threads`` is set (the default 1): workers always run torch with that many
-threads, and the parent does too while it plans.
+threads (1 when it is 0), and the parent does too while it plans.
 
 How:
 

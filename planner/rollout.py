@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from task.threads import torch_threads
+
 from .config import PlannerConfig
 from .interfaces import ACTION_DIM, DeviationEstimator, DynamicsModel
 from .problems import validate_start
 from .results import Trajectory
-from .rrt import _Evaluator, torch_threads
+from .rrt import _Evaluator
 from .sampling import ActionSampler
 
 

@@ -54,6 +54,8 @@ from typing import Iterator
 import numpy as np
 import torch
 
+from task.threads import torch_threads
+
 from .config import PlannerConfig
 from .interfaces import (SKILL_MOVE, STATE_DIM, DeviationEstimator, DynamicsModel, goal_distance)
 from .problems import validate_goal, validate_precondition, validate_start
@@ -89,21 +91,6 @@ def _ompl_log(name: str) -> Iterator[None]:
         yield
     finally:
         ou.setLogLevel(prev)
-
-
-@contextlib.contextmanager
-def torch_threads(n: int | None) -> Iterator[None]:
-    """Run with ``n`` torch intra-op threads (None: leave the setting alone), restoring the previous
-    setting afterwards. The one copy outside ``mde`` (which stands alone): ``dynamics`` uses it too."""
-    prev = torch.get_num_threads()
-    if n is None or n == prev:
-        yield
-        return
-    torch.set_num_threads(int(n))
-    try:
-        yield
-    finally:
-        torch.set_num_threads(prev)
 
 
 def _seed_ompl(seed: int) -> None:

@@ -61,6 +61,8 @@ def test_overrides_and_omegaconf():
     (dict(batch_min=64, batch_max=16), r"batch_min <= batch_max"),
     (dict(distance_weights=(0, 0, 0, 0)), r"distance_weights"),
     (dict(ompl_log_level="loud"), r"ompl_log_level='loud'"),
+    (dict(torch_threads=None), r"torch_threads=None must be an integer >= 1, or 0 to leave torch's setting alone"),
+    (dict(torch_threads=-1), r"torch_threads=-1 must be an integer >= 1, or 0"),
     (dict(problems={"goal": (0.2, 1.2)}), r"unknown planner config key\(s\) \['problems'\]"),
     (dict(move_y=(0.03, 0.4)), r"move_y=\[0.03, 0.4\] reaches outside the state bounds of y \[0.03, 0.35\]"),
     (dict(pour_theta=(0.0, 2.5)), r"pour_theta=\[0.0, 2.5\] reaches outside the state bounds of theta"),

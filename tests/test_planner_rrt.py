@@ -14,6 +14,7 @@ import pytest
 import torch
 
 from planner import ActionSampler, Planner, PlannerConfig, goal_reached, rollout
+from task.threads import torch_threads
 from tests.doubles.standins import AnalyticPouringModel, ToyBoxMDE, ToyPointRobot
 
 START = np.array([0.5, 0.05, 0.0, 1.0, 0.0])
@@ -260,6 +261,20 @@ def test_torch_threads_restored(toy):
     before = torch.get_num_threads()
     Planner(robot, mde, PlannerConfig(torch_threads=1)).plan(START, GOAL, seed=0)
     assert torch.get_num_threads() == before
+
+
+def test_torch_threads_zero_leaves_torch_alone():
+    """The one thread setter (task.threads) of the planner, the MDE and the dynamics training: 0 keeps torch's
+    setting, any other count holds inside the block only."""
+    before = torch.get_num_threads()
+    with torch_threads(0):
+        assert torch.get_num_threads() == before
+    with torch_threads(1):
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == before
+    with pytest.raises(ValueError, match="0 to leave torch's setting alone"):
+        with torch_threads(-1):
+            pass
 
 
 def test_rollout_matches_planned_trajectory(toy):

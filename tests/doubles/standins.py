@@ -31,8 +31,8 @@ from torch import Tensor, nn
 
 from planner.config import PlannerConfig
 from planner.interfaces import FEATURE_DIM, SKILL_MOVE, SKILL_POUR, STATE_DIM, features
-from planner.rrt import torch_threads
 from planner.sampling import ActionSampler
+from task.threads import torch_threads
 
 # -- analytic pouring stand-in ------------------------------------------------------------------
 TARGET_CUP_X = 0.15  # centre of the target cup's mouth (m)
