@@ -1,10 +1,12 @@
-"""Model deviation estimator (MDE): a heteroscedastic Gaussian process on BoTorch / GPyTorch.
+"""Model deviation estimator (MDE): a Gaussian process on BoTorch / GPyTorch.
 
 Predicts a Gaussian over the deviation d(f_hat(s, a), s') of an inaccurate dynamics model from
 features X = (s, a). Knows nothing of the simulator or the planner: tensors in, tensors out.
+:class:`GPMDE` is one GP whose noise is either homoscedastic (one level) or the paper's most-likely
+heteroscedastic model (``MDEConfig.heteroscedastic``).
 
-    from mde import HeteroscedasticGPMDE
-    mde = HeteroscedasticGPMDE().fit(X, y)       # X: n x d, y: n deviations >= 0
+    from mde import GPMDE
+    mde = GPMDE().fit(X, y)                      # X: n x d, y: n deviations >= 0
     mean, std = mde.predict(X_query)             # label units, predictive std (latent + noise)
     post = mde.model.posterior(X_bqd)            # BoTorch posterior, label units, latent only
     mde = GroupedMDE(group_column=5)             # one such GP per value of feature 5 (the skill)
@@ -14,17 +16,17 @@ from typing import Any
 
 from .config import MDEConfig
 from .grouped import GroupedMDE
-from .model import HeteroscedasticGPMDE
+from .model import GPMDE
 
-__all__ = ["GroupedMDE", "HeteroscedasticGPMDE", "MDEConfig", "calibration_report", "load"]
+__all__ = ["GroupedMDE", "GPMDE", "MDEConfig", "calibration_report", "load"]
 
 
-def load(path: Any) -> "HeteroscedasticGPMDE | GroupedMDE":
+def load(path: Any) -> "GPMDE | GroupedMDE":
     """Load a saved MDE of either kind (the file names its format)."""
     import torch
 
     payload = torch.load(path, map_location="cpu", weights_only=True)
-    cls = GroupedMDE if isinstance(payload, dict) and payload.get("format") == "mde.GroupedMDE" else HeteroscedasticGPMDE
+    cls = GroupedMDE if isinstance(payload, dict) and payload.get("format") == "mde.GroupedMDE" else GPMDE
     return cls.load(path)
 
 

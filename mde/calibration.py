@@ -158,7 +158,7 @@ def load_heldout(path: str | Path) -> tuple[Tensor, Tensor]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m mde.calibration", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--model", required=True, help="saved MDE (.pt): HeteroscedasticGPMDE or GroupedMDE")
+    parser.add_argument("--model", required=True, help="saved MDE (.pt): GPMDE or GroupedMDE")
     parser.add_argument("--data", required=True, help="held-out data: .pt with a dict {'X': n x d, 'y': n}")
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--raw-labels", action="store_true",

@@ -24,7 +24,7 @@ _HYDRA_KEYS = ("_target_", "_recursive_", "_convert_", "_partial_")
 
 @dataclass(frozen=True)
 class MDEConfig:
-    """Settings of :class:`mde.HeteroscedasticGPMDE` (paper defaults where the paper says).
+    """Settings of :class:`mde.GPMDE` (paper defaults where the paper says).
 
     Units: ``prior_std`` is in label units (the deviation's own units); ``noise_floor`` and
     ``jitter`` are in z-scored label units, i.e. fractions of the label variance.
@@ -107,7 +107,7 @@ class MDEConfig:
     #: Index of a categorical feature column (e.g. the action's skill): :class:`mde.GroupedMDE`
     #: fits one independent GP per value of that column. Skills' parameters mean different
     #: things (a move's target x against a pour's angle), so one stationary kernel across them
-    #: is a poor prior. None: one GP for all rows (:class:`mde.HeteroscedasticGPMDE`).
+    #: is a poor prior. None: one GP for all rows (:class:`mde.GPMDE`).
     group_column: int | None = None
 
     def __post_init__(self) -> None:

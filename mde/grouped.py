@@ -1,4 +1,4 @@
-"""One heteroscedastic GP per value of a categorical feature (the action's skill).
+"""One GP MDE (:class:`mde.GPMDE`) per value of a categorical feature (the action's skill).
 
 The pouring task's action is (skill, p1, p2): p1, p2 are a move's target (x, y) or a pour's
 (angle, hold). One stationary ARD kernel over both has to share a length scale between a target x
@@ -24,17 +24,18 @@ import safeio
 
 from .config import MDEConfig
 from .gp import DTYPE, MarginalModel
-from .model import HeteroscedasticGPMDE, _as_labels, _as_matrix
+from .model import GPMDE, _as_labels, _as_matrix
 
 _FORMAT = "mde.GroupedMDE"
-_FORMAT_VERSION = 1
+#: 2: every group is saved as an ``mde.GPMDE``
+_FORMAT_VERSION = 2
 
 
 class GroupedMDE:
     """``fit(X, y)``, ``predict(X) -> (mean, std)`` and a BoTorch ``model``, like
-    :class:`HeteroscedasticGPMDE`, with one such GP per value of ``config.group_column``.
+    :class:`GPMDE`, with one such GP per value of ``config.group_column``.
 
-    With ``group_column=None`` every row is in one group: results equal one HeteroscedasticGPMDE.
+    With ``group_column=None`` every row is in one group: results equal one GPMDE.
     """
 
     def __init__(self, config: MDEConfig | Mapping[str, Any] | None = None, **overrides: Any) -> None:
@@ -42,8 +43,8 @@ class GroupedMDE:
         base.update(overrides)
         self._config = MDEConfig.from_dict(base)
         self._child_config = dataclasses.replace(self._config, group_column=None)
-        self._children: dict[float, HeteroscedasticGPMDE] = {}
-        self._prior = HeteroscedasticGPMDE(self._child_config)
+        self._children: dict[float, GPMDE] = {}
+        self._prior = GPMDE(self._child_config)
         self._X: Tensor | None = None
         self._y: Tensor | None = None
         self._n_features: int | None = None
@@ -75,7 +76,7 @@ class GroupedMDE:
         return self._y
 
     @property
-    def groups(self) -> dict[float, HeteroscedasticGPMDE]:
+    def groups(self) -> dict[float, GPMDE]:
         """The GP of each group value seen in fitting."""
         return dict(self._children)
 
@@ -115,7 +116,7 @@ class GroupedMDE:
         g = self.group_of(X)
         for value in torch.unique(g).tolist():
             rows = g == value
-            child = self._children.get(value) or HeteroscedasticGPMDE(self._child_config)
+            child = self._children.get(value) or GPMDE(self._child_config)
             self._children[value] = child.fit(X[rows], y[rows])
         for value in set(self._children) - set(torch.unique(g).tolist()):
             self._children[value].fit(X[:0], y[:0])  # no rows left: back to the prior
@@ -181,12 +182,14 @@ class GroupedMDE:
         """Rebuild a saved GroupedMDE; predictions are identical to the saved one's."""
         payload = torch.load(Path(path), map_location="cpu", weights_only=True)
         if not isinstance(payload, dict) or payload.get("format") != _FORMAT:
-            raise ValueError(f"{path} is not a saved {_FORMAT}")
+            tag = payload.get("format") if isinstance(payload, dict) else None
+            raise ValueError(f"{path} is not a saved {_FORMAT} (format tag {tag!r}); fit the MDE again")
         if payload.get("version") != _FORMAT_VERSION:
-            raise ValueError(f"{path} has format version {payload.get('version')}, expected {_FORMAT_VERSION}")
+            raise ValueError(f"{path} has format version {payload.get('version')}, this code reads version "
+                             f"{_FORMAT_VERSION}; fit the MDE again")
         mde = cls(payload["config"])
         mde._n_features, mde._X, mde._y = payload["n_features"], payload["X"], payload["y"]
-        mde._children = {float(g): HeteroscedasticGPMDE.from_payload(p, f"{path} group {g}")
+        mde._children = {float(g): GPMDE.from_payload(p, f"{path} group {g}")
                          for g, p in payload["groups"]}
         return mde
 

@@ -1,9 +1,10 @@
-"""The model deviation estimator: a most-likely heteroscedastic GP on BoTorch.
+"""The model deviation estimator: a GP on BoTorch, with homoscedastic or most-likely heteroscedastic noise.
 
 The MDE predicts a Gaussian over the deviation d(f_hat(s, a), s') of the learned dynamics model
 from the target world, given features X = (s, a). The planner uses ``mu + beta * sigma < d_max``,
-so both the mean and a calibrated predictive std matter, and the std must grow where the data
-is noisy (pours near the plant), hence heteroscedastic noise.
+so both the mean and a calibrated predictive std matter. The paper's MDE lets the std grow where the
+data is noisy (pours near the plant): heteroscedastic noise (``heteroscedastic: true``). With
+``heteroscedastic: false`` the GP has one noise level (step 1 below alone).
 
 BoTorch >= 0.13 has no heteroscedastic GP, so this follows Kersting et al. (2007), "Most likely
 heteroscedastic Gaussian process regression":
@@ -62,7 +63,7 @@ from .gp import (
 
 #: ``-E[log chi^2_1] = Euler's gamma + log 2``: bias of the log of one squared standard Gaussian.
 LOG_CHI2_BIAS = 0.5772156649015329 + math.log(2.0)
-_FORMAT = "mde.HeteroscedasticGPMDE"
+_FORMAT = "mde.GPMDE"
 _FORMAT_VERSION = 1
 _FIT_ERRORS = (NotPSDError, NanError, ModelFittingError, torch.linalg.LinAlgError)
 
@@ -87,15 +88,15 @@ class _Fitted:
     info: dict[str, Any] = field(default_factory=dict)
 
 
-class HeteroscedasticGPMDE:
-    """Model deviation estimator: ``fit(X, y)``, ``predict(X) -> (mean, std)``, BoTorch ``model``.
+class GPMDE:
+    """Model deviation estimator, one GP: ``fit(X, y)``, ``predict(X) -> (mean, std)``, BoTorch ``model``.
 
     Args:
         config: an :class:`MDEConfig` or a mapping of its fields (e.g. a Hydra node).
-        **overrides: individual fields, e.g. ``HeteroscedasticGPMDE(heteroscedastic=False)``.
+        **overrides: individual fields, e.g. ``GPMDE(heteroscedastic=False)``.
 
     ``predict`` returns the predictive distribution of the deviation in label units: std includes
-    both the latent GP variance and the heteroscedastic noise at X. ``model.posterior(X)`` is the
+    both the latent GP variance and the noise at X (the noise GP's, when heteroscedastic). ``model.posterior(X)`` is the
     latent posterior in label units; ``model.posterior(X, observation_noise=True)`` equals
     ``predict``. Before any data both give mean 0 and std ``config.prior_std``.
     """
@@ -108,7 +109,7 @@ class HeteroscedasticGPMDE:
         base.update(overrides)
         self._config = MDEConfig.from_dict(base)
         if self._config.group_column is not None:
-            raise ValueError(f"group_column={self._config.group_column}: HeteroscedasticGPMDE is one GP for all rows; "
+            raise ValueError(f"group_column={self._config.group_column}: GPMDE is one GP for all rows; "
                              "use mde.GroupedMDE for one GP per group (or group_column=null)")
         self._fitted: _Fitted | None = None
         self._n_features: int | None = None
@@ -179,7 +180,7 @@ class HeteroscedasticGPMDE:
         return {} if self._fitted is None else dict(self._fitted.info)
 
     # -- fitting ---------------------------------------------------------------------------------
-    def fit(self, X: Any, y: Any) -> "HeteroscedasticGPMDE":
+    def fit(self, X: Any, y: Any) -> "GPMDE":
         """Fit on the whole dataset (not incremental). ``X``: n x d, ``y``: n deviations >= 0.
 
         n = 0 resets to the prior. If the GP cannot be factorised even with jitter, a warning is
@@ -441,18 +442,20 @@ class HeteroscedasticGPMDE:
         return payload
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "HeteroscedasticGPMDE":
+    def load(cls, path: str | os.PathLike) -> "GPMDE":
         """Rebuild a saved MDE; predictions are identical to the saved one's."""
         payload = torch.load(Path(path), map_location="cpu", weights_only=True)
         return cls.from_payload(payload, str(path))
 
     @classmethod
-    def from_payload(cls, payload: Any, source: str = "payload") -> "HeteroscedasticGPMDE":
+    def from_payload(cls, payload: Any, source: str = "payload") -> "GPMDE":
         """Inverse of :meth:`to_payload`."""
         if not isinstance(payload, dict) or payload.get("format") != _FORMAT:
-            raise ValueError(f"{source} is not a saved {_FORMAT}")
+            tag = payload.get("format") if isinstance(payload, dict) else None
+            raise ValueError(f"{source} is not a saved {_FORMAT} (format tag {tag!r}); fit the MDE again")
         if payload.get("version") != _FORMAT_VERSION:
-            raise ValueError(f"{source} has format version {payload.get('version')}, expected {_FORMAT_VERSION}")
+            raise ValueError(f"{source} has format version {payload.get('version')}, this code reads version "
+                             f"{_FORMAT_VERSION}; fit the MDE again")
         mde = cls(payload["config"])
         mde._n_features = payload["n_features"]
         state = payload["fitted"]
@@ -490,7 +493,7 @@ class HeteroscedasticGPMDE:
 
     def __repr__(self) -> str:
         kind = "heteroscedastic" if self._config.heteroscedastic else "homoscedastic"
-        return f"HeteroscedasticGPMDE({kind}, nu={self._config.nu}, n_train={self.n_train}, d={self._n_features})"
+        return f"GPMDE({kind}, nu={self._config.nu}, n_train={self.n_train}, d={self._n_features})"
 
 
 # -- helpers ---------------------------------------------------------------------------------------

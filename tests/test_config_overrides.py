@@ -350,10 +350,10 @@ def test_a_method_spec_enters_the_digest_only_when_it_differs_from_what_runs_had
 
 
 def test_mde_options_are_the_default_mde_with_named_fields_changed():
-    """The default MDE (sessions 33 and 41) is homoscedastic with labels capped at 0.1 and BoTorch's lognormal
-    priors; ``mde=heteroscedastic`` is the paper's GP, fitted by maximum likelihood as before session 41; every
-    other field as ``mde=default``, the same run configuration (digest) as the overrides spelled out.
-    ``mde=homoscedastic`` (session 31's name) is the default of sessions 33-40: maximum likelihood."""
+    """The default MDE is homoscedastic with labels capped at 0.1 and BoTorch's lognormal priors;
+    ``mde=heteroscedastic`` is the paper's GP, fitted by maximum likelihood; every other field as ``mde=default``,
+    the same run configuration (digest) as the overrides spelled out. ``mde=maximum_likelihood`` is the default MDE
+    fitted by maximum likelihood."""
     from hydra.utils import instantiate
 
     base, hetero = compose_config(["experiment=tiny"]), compose_config(["experiment=tiny", "mde=heteroscedastic"])
@@ -365,10 +365,10 @@ def test_mde_options_are_the_default_mde_with_named_fields_changed():
     spelled = compose_config(["experiment=tiny", "mde.heteroscedastic=true", "mde.label_max=null",
                               "mde.hyperparameter_priors=none"])
     assert config_digest(hetero) == config_digest(spelled) != config_digest(base)
-    homo = compose_config(["experiment=tiny", "mde=homoscedastic"])
-    assert {k for k in base["mde"] if base["mde"][k] != homo["mde"][k]} == {"hyperparameter_priors"}
-    assert config_digest(homo) == config_digest(compose_config(["experiment=tiny", "mde.hyperparameter_priors=none"]))
-    assert config_digest(homo) != config_digest(base)
+    ml = compose_config(["experiment=tiny", "mde=maximum_likelihood"])
+    assert {k for k in base["mde"] if base["mde"][k] != ml["mde"][k]} == {"hyperparameter_priors"}
+    assert config_digest(ml) == config_digest(compose_config(["experiment=tiny", "mde.hyperparameter_priors=none"]))
+    assert config_digest(ml) != config_digest(base)
     mde = instantiate(hetero["mde"], _convert_="all")
     assert mde.config.heteroscedastic is True and mde.config.label_max is None
     assert mde.config.hyperparameter_priors == "none"

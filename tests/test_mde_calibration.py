@@ -8,7 +8,7 @@ import math
 import pytest
 import torch
 
-from mde import HeteroscedasticGPMDE, calibration_report
+from mde import GPMDE, calibration_report
 from mde.calibration import gaussian_calibration, main, reliability_plot
 
 
@@ -90,7 +90,7 @@ def test_command_writes_report_and_plot(tmp_path, capsys):
     g = torch.Generator().manual_seed(3)
     X = torch.rand(80, 2, generator=g, dtype=torch.float64)
     y = (0.5 + 0.3 * X[:, 0] + 0.05 * torch.randn(80, generator=g, dtype=torch.float64)).clamp_min(0)
-    mde = HeteroscedasticGPMDE(heteroscedastic=False, num_threads=1).fit(X[:50], y[:50])
+    mde = GPMDE(heteroscedastic=False, num_threads=1).fit(X[:50], y[:50])
     mde.save(tmp_path / "mde.pt")
     torch.save({"X": X[50:], "y": y[50:]}, tmp_path / "heldout.pt")
     argv = ["--model", str(tmp_path / "mde.pt"), "--data", str(tmp_path / "heldout.pt"), "--out", str(tmp_path / "cal")]

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import mde
-from mde import GroupedMDE, HeteroscedasticGPMDE
+from mde import GroupedMDE, GPMDE
 from planner import features
 
 T1 = {"num_threads": 1, "fit_maxiter": 60}
@@ -34,7 +34,7 @@ def test_each_group_is_its_own_gp(grouped) -> None:
     m, X, y = grouped
     assert sorted(m.groups) == [0.0, 1.0] and m.n_train == len(y)
     rows = X[:, 2] == 1
-    alone = HeteroscedasticGPMDE(**T1).fit(X[rows], y[rows])
+    alone = GPMDE(**T1).fit(X[rows], y[rows])
     for a, b in zip(alone.predict(X[rows]), m.predict(X[rows])):
         assert torch.equal(a, b)
 
@@ -43,7 +43,7 @@ def test_generalises_better_than_one_gp_across_groups() -> None:
     X, y = _two_skills(160, 0)
     Xt, yt = _two_skills(400, 1)
     err_grouped = (GroupedMDE(group_column=2, **T1).fit(X, y).predict(Xt)[0] - yt).abs().mean()
-    err_one = (HeteroscedasticGPMDE(**T1).fit(X, y).predict(Xt)[0] - yt).abs().mean()
+    err_one = (GPMDE(**T1).fit(X, y).predict(Xt)[0] - yt).abs().mean()
     assert err_grouped < err_one
 
 
@@ -72,12 +72,12 @@ def test_save_load_and_pickle_round_trip(grouped, tmp_path) -> None:
     assert isinstance(back, GroupedMDE) and torch.equal(back.train_X, m.train_X)
     assert torch.equal(back.predict(X)[1], m.predict(X)[1])
     assert torch.equal(pickle.loads(pickle.dumps(m)).predict(X)[0], m.predict(X)[0])
-    assert isinstance(mde.load(HeteroscedasticGPMDE(**T1).save(tmp_path / "h.pt")), HeteroscedasticGPMDE)
+    assert isinstance(mde.load(GPMDE(**T1).save(tmp_path / "h.pt")), GPMDE)
 
 
 def test_without_group_column_it_is_one_gp() -> None:
     X, y = _two_skills(80, 2)
-    a, b = GroupedMDE(**T1).fit(X, y), HeteroscedasticGPMDE(**T1).fit(X, y)
+    a, b = GroupedMDE(**T1).fit(X, y), GPMDE(**T1).fit(X, y)
     assert torch.equal(a.predict(X)[1], b.predict(X)[1])
 
 
@@ -87,7 +87,7 @@ def test_bad_group_column_is_refused() -> None:
     with pytest.raises(ValueError, match="group_column=9"):
         GroupedMDE(group_column=9).fit(torch.rand(5, 3, dtype=torch.float64), torch.rand(5, dtype=torch.float64))
     with pytest.raises(ValueError, match="GroupedMDE"):
-        HeteroscedasticGPMDE(group_column=1)
+        GPMDE(group_column=1)
 
 
 def test_default_config_groups_by_the_skill() -> None:
@@ -118,7 +118,7 @@ def test_covariance_is_gpytorchs_joint_latent_posterior(heteroscedastic) -> None
     """mde covariance (what a look-ahead acquisition conditions on) against GPyTorch's own joint posterior; its
     diagonal is the latent variance of mean_var; groups are independent; before a fit, the iid prior."""
     X, y = _two_skills(120, 3)
-    one = HeteroscedasticGPMDE(heteroscedastic=heteroscedastic, **T1).fit(X[X[:, 2] == 0], y[X[:, 2] == 0])
+    one = GPMDE(heteroscedastic=heteroscedastic, **T1).fit(X[X[:, 2] == 0], y[X[:, 2] == 0])
     Xq = X[X[:, 2] == 0][:6].clone()
     Xq[:, 0] += 0.01
     C = one.covariance(Xq, Xq[:4])

@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from mde import HeteroscedasticGPMDE
+import mde
+from mde import GPMDE
 
 T1 = {"num_threads": 1, "max_iters": 2}  # see tests/test_mde_model.py
 
@@ -32,9 +33,9 @@ def _data(n: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
 def test_round_trip_predicts_identically(tmp_path, config):
     torch.manual_seed(0)
     X, y = _data(70)
-    m = HeteroscedasticGPMDE(**T1, **config).fit(X, y)
+    m = GPMDE(**T1, **config).fit(X, y)
     path = m.save(tmp_path / "sub" / "mde.pt")
-    loaded = HeteroscedasticGPMDE.load(path)
+    loaded = GPMDE.load(path)
     assert loaded.config == m.config and loaded.n_train == 70 and loaded.n_features == 3
     assert loaded.fit_info == m.fit_info
     assert (loaded.noise_model is None) == (m.noise_model is None)
@@ -50,8 +51,8 @@ def test_round_trip_predicts_identically(tmp_path, config):
 
 
 def test_round_trip_of_unfitted_model(tmp_path):
-    m = HeteroscedasticGPMDE(prior_std=0.3).fit(torch.empty(0, 4, dtype=torch.float64), torch.empty(0))
-    loaded = HeteroscedasticGPMDE.load(m.save(tmp_path / "prior.pt"))
+    m = GPMDE(prior_std=0.3).fit(torch.empty(0, 4, dtype=torch.float64), torch.empty(0))
+    loaded = GPMDE.load(m.save(tmp_path / "prior.pt"))
     assert not loaded.is_fitted and loaded.n_features == 4 and loaded.config.prior_std == 0.3
     mean, std = loaded.predict(torch.rand(3, 4, dtype=torch.float64))
     assert torch.equal(mean, torch.zeros(3, dtype=torch.float64))
@@ -60,7 +61,7 @@ def test_round_trip_of_unfitted_model(tmp_path):
 
 def test_failed_save_leaves_previous_file_intact(tmp_path, monkeypatch):
     X, y = _data(30)
-    m = HeteroscedasticGPMDE(heteroscedastic=False, **T1).fit(X, y)
+    m = GPMDE(heteroscedastic=False, **T1).fit(X, y)
     path = m.save(tmp_path / "mde.pt")
     before = path.read_bytes()
 
@@ -70,7 +71,7 @@ def test_failed_save_leaves_previous_file_intact(tmp_path, monkeypatch):
 
     monkeypatch.setattr(torch, "save", broken_save)
     with pytest.raises(OSError, match="disk full"):
-        HeteroscedasticGPMDE(heteroscedastic=False, **T1).fit(X[:10], y[:10]).save(path)
+        GPMDE(heteroscedastic=False, **T1).fit(X[:10], y[:10]).save(path)
     assert path.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["mde.pt"]
 
@@ -79,4 +80,16 @@ def test_load_rejects_other_files(tmp_path):
     path = tmp_path / "other.pt"
     torch.save({"X": torch.zeros(2, 2)}, path)
     with pytest.raises(ValueError, match="not a saved"):
-        HeteroscedasticGPMDE.load(path)
+        GPMDE.load(path)
+
+
+def test_load_names_the_format_versions(tmp_path):
+    """A saved MDE of another format version is refused, naming both versions."""
+    path = GPMDE(**T1).save(tmp_path / "one.pt")
+    payload = torch.load(path, weights_only=True)
+    torch.save({**payload, "version": 0}, path)
+    with pytest.raises(ValueError, match="has format version 0, this code reads version 1; fit the MDE again"):
+        mde.load(path)
+    torch.save({"format": "mde.GroupedMDE", "version": 1}, path)
+    with pytest.raises(ValueError, match="has format version 1, this code reads version 2; fit the MDE again"):
+        mde.load(path)

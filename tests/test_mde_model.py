@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from mde import HeteroscedasticGPMDE, calibration_report
+from mde import GPMDE, calibration_report
 
 
 def _data_1d(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -44,8 +44,8 @@ def fitted() -> dict:
     for name, (make, n) in CASES.items():
         X, y = make(n, seed=1)
         Xt, yt = make(3000, seed=2)
-        het = HeteroscedasticGPMDE(predict_dtype="float64", **T1).fit(X, y)
-        hom = HeteroscedasticGPMDE(heteroscedastic=False, predict_dtype="float64", **T1).fit(X, y)
+        het = GPMDE(predict_dtype="float64", **T1).fit(X, y)
+        hom = GPMDE(heteroscedastic=False, predict_dtype="float64", **T1).fit(X, y)
         out[name] = dict(X=X, y=y, Xt=Xt, yt=yt, het=het, hom=hom)
     return out
 
@@ -160,7 +160,7 @@ def test_botorch_acquisition_functions_run_on_the_model(fitted):
 def test_float32_fast_path_close_to_float64(fitted):
     c = fitted["4d"]
     mde64 = c["het"]
-    mde32 = HeteroscedasticGPMDE(predict_dtype="float32")
+    mde32 = GPMDE(predict_dtype="float32")
     keys = ("X", "y", "bounds", "mean_model", "train_Yvar", "noise_model", "noise_train", "info")
     mde32._fitted = mde32._make_fitted(*(getattr(mde64._fitted, k) for k in keys))
     mde32._n_features = mde64.n_features
@@ -172,7 +172,7 @@ def test_float32_fast_path_close_to_float64(fitted):
 
 def test_predict_is_batched_chunked_and_gradient_free(fitted):
     c = fitted["1d"]
-    mde = HeteroscedasticGPMDE(predict_dtype="float64", predict_chunk=7)
+    mde = GPMDE(predict_dtype="float64", predict_chunk=7)
     mde._fitted, mde._n_features = c["het"]._fitted, 1
     Xq = c["Xt"][:50].clone().requires_grad_(True)
     mean, std = mde.predict(Xq)
@@ -189,7 +189,7 @@ def test_other_kernels_and_input_scaling(nu, scaling):
     torch.manual_seed(0)
     X, y = _data_4d(80, seed=3)
     X = X * torch.tensor([1.0, 10.0, 0.1, 100.0]) + 5.0  # unscaled, offset features
-    mde = HeteroscedasticGPMDE(nu=nu, input_scaling=scaling, max_iters=2, predict_dtype="float64", **T1).fit(X, y)
+    mde = GPMDE(nu=nu, input_scaling=scaling, max_iters=2, predict_dtype="float64", **T1).fit(X, y)
     Xq = X[:20] + 0.01
     mean, std = mde.predict(Xq)
     post = mde.model.posterior(Xq.unsqueeze(1), observation_noise=True)
@@ -201,7 +201,7 @@ def test_other_kernels_and_input_scaling(nu, scaling):
 def test_hyperparameter_subset_then_condition_on_all():
     torch.manual_seed(0)
     X, y = _data_1d(120, seed=4)
-    mde = HeteroscedasticGPMDE(max_fit_points=50, max_iters=2, predict_dtype="float64", **T1).fit(X, y)
+    mde = GPMDE(max_fit_points=50, max_iters=2, predict_dtype="float64", **T1).fit(X, y)
     assert mde.fit_info["n_fit_points"] == 50 and mde.n_train == 120
     assert mde.model.train_targets.shape == (120,)
     mean, std = mde.predict(X[:10])
@@ -211,12 +211,12 @@ def test_hyperparameter_subset_then_condition_on_all():
 
 
 def test_prior_before_fit_and_after_empty_fit():
-    mde = HeteroscedasticGPMDE()
+    mde = GPMDE()
     mean, std = mde.predict(torch.rand(5, 3))
     assert torch.equal(mean, torch.zeros(5)) and torch.equal(std, torch.full((5,), 1.0))
     post = mde.model.posterior(torch.rand(2, 4, 3))
     assert post.mean.shape == (2, 4, 1) and torch.allclose(post.variance, torch.ones(2, 4, 1))
-    mde = HeteroscedasticGPMDE(prior_std=0.25).fit(torch.empty(0, 3), torch.empty(0))
+    mde = GPMDE(prior_std=0.25).fit(torch.empty(0, 3), torch.empty(0))
     assert not mde.is_fitted and mde.n_features == 3
     assert torch.allclose(mde.predict(torch.rand(2, 3))[1], torch.full((2,), 0.25))
     with pytest.raises(ValueError, match="d=2"):
@@ -265,8 +265,8 @@ def test_lengthscales_stay_under_their_bound():
     X, y = _data_4d(120, seed=5)
     X = X * torch.tensor([1.0, 10.0, 0.1, 100.0])  # unscaled features
     std = X.std(dim=0)
-    free = HeteroscedasticGPMDE(max_iters=2, **T1).fit(X, y)
-    capped = HeteroscedasticGPMDE(max_iters=2, lengthscale_max=2.0, **T1).fit(X, y)
+    free = GPMDE(max_iters=2, **T1).fit(X, y)
+    capped = GPMDE(max_iters=2, lengthscale_max=2.0, **T1).fit(X, y)
     ls = lambda gp: gp.covar_module.base_kernel.lengthscale.detach().reshape(-1)  # noqa: E731
     assert (ls(free.noise_model) / std).max() > 2.0
     for gp in (capped.model, capped.noise_model):
@@ -275,7 +275,7 @@ def test_lengthscales_stay_under_their_bound():
     post = capped.model.posterior(X[:10].unsqueeze(1), observation_noise=True)
     torch.testing.assert_close(post.variance.reshape(-1).sqrt(), std_pred, rtol=1e-6, atol=1e-8)
     with pytest.raises(ValueError, match=r"lengthscale_max must be a finite number > 0, got -1"):
-        HeteroscedasticGPMDE(lengthscale_max=-1.0)
+        GPMDE(lengthscale_max=-1.0)
 
 
 def test_noise_lengthscale_max_bounds_the_noise_gp_alone():
@@ -285,13 +285,13 @@ def test_noise_lengthscale_max_bounds_the_noise_gp_alone():
     X = X * torch.tensor([1.0, 10.0, 0.1, 100.0])
     std = X.std(dim=0)
     ls = lambda gp: gp.covar_module.base_kernel.lengthscale.detach().reshape(-1)  # noqa: E731
-    m = HeteroscedasticGPMDE(max_iters=2, noise_lengthscale_max=2.0, **T1).fit(X, y)
+    m = GPMDE(max_iters=2, noise_lengthscale_max=2.0, **T1).fit(X, y)
     assert ((ls(m.noise_model) / std) <= 2.0 * (1 + 1e-6)).all()  # the Interval transform's rounding
     assert (ls(m.model) / std).max() > 2.0  # the mean GP is not bounded
-    assert HeteroscedasticGPMDE(lengthscale_max=3.0).config.noise_lengthscale_bound == 3.0
-    assert HeteroscedasticGPMDE(lengthscale_max=3.0, noise_lengthscale_max=1.0).config.noise_lengthscale_bound == 1.0
+    assert GPMDE(lengthscale_max=3.0).config.noise_lengthscale_bound == 3.0
+    assert GPMDE(lengthscale_max=3.0, noise_lengthscale_max=1.0).config.noise_lengthscale_bound == 1.0
     with pytest.raises(ValueError, match=r"noise_lengthscale_max must be a finite number > 0, got 0"):
-        HeteroscedasticGPMDE(noise_lengthscale_max=0)
+        GPMDE(noise_lengthscale_max=0)
 
 
 def test_latent_std_min_keeps_unvisited_inputs_unknown():
@@ -303,8 +303,8 @@ def test_latent_std_min_keeps_unvisited_inputs_unknown():
     y = 0.02 + 0.01 * torch.rand(40, generator=g, dtype=torch.float64)  # benign labels only
     far = torch.tensor([[1e8, -1e8, 1e8]], dtype=torch.float64)  # beyond any lengthscale (<= ~1e5, RAW_UPPER)
     latent_std = lambda m, Xq: m.model.posterior(Xq.unsqueeze(1)).variance.reshape(-1).sqrt()  # noqa: E731
-    free = HeteroscedasticGPMDE(hyperparameter_priors="none", **T1).fit(X, y)
-    floored = HeteroscedasticGPMDE(latent_std_min=0.05, hyperparameter_priors="none", **T1).fit(X, y)
+    free = GPMDE(hyperparameter_priors="none", **T1).fit(X, y)
+    floored = GPMDE(latent_std_min=0.05, hyperparameter_priors="none", **T1).fit(X, y)
     assert float(latent_std(free, far)) < 0.035  # mu + 2 sigma < d_max = 0.07 where there is no data
     assert float(latent_std(floored, far)) == pytest.approx(0.05, rel=1e-6)
     mean, std = floored.predict(far)
@@ -314,11 +314,11 @@ def test_latent_std_min_keeps_unvisited_inputs_unknown():
     # labels of a wide spread: the bound is far below the fitted outputscale and does not bind (the
     # optimiser's path through the bound's transform differs, so equal to the optimiser's tolerance)
     wide = y * 100.0
-    a = HeteroscedasticGPMDE(hyperparameter_priors="none", **T1).fit(X, wide).predict(far)
-    b = HeteroscedasticGPMDE(latent_std_min=0.05, hyperparameter_priors="none", **T1).fit(X, wide).predict(far)
+    a = GPMDE(hyperparameter_priors="none", **T1).fit(X, wide).predict(far)
+    b = GPMDE(latent_std_min=0.05, hyperparameter_priors="none", **T1).fit(X, wide).predict(far)
     torch.testing.assert_close(a, b, rtol=1e-3, atol=1e-9)
     with pytest.raises(ValueError, match=r"latent_std_min must be a finite number > 0, got 0"):
-        HeteroscedasticGPMDE(latent_std_min=0)
+        GPMDE(latent_std_min=0)
 
 
 def test_latent_std_max_bounds_the_latent_std_far_from_the_data():
@@ -329,14 +329,14 @@ def test_latent_std_max_bounds_the_latent_std_far_from_the_data():
     y = 0.3 * torch.rand(40, generator=g, dtype=torch.float64)  # a wide spread: the free fit is far above 0.02
     far = torch.tensor([[1e8, -1e8, 1e8]], dtype=torch.float64)
     latent_std = lambda m: float(m.model.posterior(far.unsqueeze(1)).variance.reshape(-1).sqrt())  # noqa: E731
-    assert latent_std(HeteroscedasticGPMDE(**T1).fit(X, y)) > 0.05
-    assert latent_std(HeteroscedasticGPMDE(latent_std_max=0.02, **T1).fit(X, y)) <= 0.02 * (1 + 1e-6)
-    both = HeteroscedasticGPMDE(latent_std_min=0.01, latent_std_max=0.02, **T1).fit(X, y)
+    assert latent_std(GPMDE(**T1).fit(X, y)) > 0.05
+    assert latent_std(GPMDE(latent_std_max=0.02, **T1).fit(X, y)) <= 0.02 * (1 + 1e-6)
+    both = GPMDE(latent_std_min=0.01, latent_std_max=0.02, **T1).fit(X, y)
     assert 0.01 * (1 - 1e-6) <= latent_std(both) <= 0.02 * (1 + 1e-6)
     with pytest.raises(ValueError, match=r"latent_std_min \(0.05\) must be below latent_std_max \(0.02\)"):
-        HeteroscedasticGPMDE(latent_std_min=0.05, latent_std_max=0.02)
+        GPMDE(latent_std_min=0.05, latent_std_max=0.02)
     with pytest.raises(ValueError, match=r"latent_std_max must be a finite number > 0, got -1"):
-        HeteroscedasticGPMDE(latent_std_max=-1)
+        GPMDE(latent_std_max=-1)
 
 
 def test_label_max_fits_large_deviations_as_that_value():
@@ -347,17 +347,17 @@ def test_label_max_fits_large_deviations_as_that_value():
     y = 0.02 + 0.01 * torch.rand(40, generator=g, dtype=torch.float64)
     y_spill = y.clone()
     y_spill[X[:, 0] > 0.8] = 1.8  # whole spills in one corner
-    capped = HeteroscedasticGPMDE(label_max=0.3, **T1).fit(X, y_spill)
+    capped = GPMDE(label_max=0.3, **T1).fit(X, y_spill)
     assert float(capped.train_y.max()) == 0.3 and float(capped.train_y.min()) == float(y.min())
-    ref = HeteroscedasticGPMDE(**T1).fit(X, y_spill.clamp(max=0.3))
+    ref = GPMDE(**T1).fit(X, y_spill.clamp(max=0.3))
     torch.testing.assert_close(capped.predict(X), ref.predict(X))
     corner = X[X[:, 0] > 0.8]
     mean, std = capped.predict(corner)
     assert (mean > 0.2).all()
-    same = HeteroscedasticGPMDE(label_max=0.3, **T1).fit(X, y).predict(X)
-    torch.testing.assert_close(same, HeteroscedasticGPMDE(**T1).fit(X, y).predict(X))
+    same = GPMDE(label_max=0.3, **T1).fit(X, y).predict(X)
+    torch.testing.assert_close(same, GPMDE(**T1).fit(X, y).predict(X))
     with pytest.raises(ValueError, match=r"label_max must be a finite number > 0, got -1"):
-        HeteroscedasticGPMDE(label_max=-1)
+        GPMDE(label_max=-1)
 
 
 def test_gamma_priors_keep_lengthscales_in_range_and_survive_saving(tmp_path):
@@ -366,18 +366,18 @@ def test_gamma_priors_keep_lengthscales_in_range_and_survive_saving(tmp_path):
     the priors come back with a saved model (same predictions; "lognormal" too); a bad value names the field."""
     X, y = _data_4d(120, seed=5)
     ls = lambda gp: gp.covar_module.base_kernel.lengthscale.detach().reshape(-1)  # noqa: E731
-    free = HeteroscedasticGPMDE(max_iters=2, hyperparameter_priors="none", **T1).fit(X, y)
-    gamma = HeteroscedasticGPMDE(max_iters=2, hyperparameter_priors="gamma", **T1).fit(X, y)
+    free = GPMDE(max_iters=2, hyperparameter_priors="none", **T1).fit(X, y)
+    gamma = GPMDE(max_iters=2, hyperparameter_priors="gamma", **T1).fit(X, y)
     assert ls(free.noise_model).max() > 5.0
     for gp in (gamma.model, gamma.noise_model):
         assert ls(gp).max() < 3.0 and len(list(gp.named_priors())) >= 2
     assert torch.isfinite(gamma.predict(X)[1]).all()
     path = tmp_path / "mde.pt"
     gamma.save(path)
-    torch.testing.assert_close(HeteroscedasticGPMDE.load(path).predict(X[:20]), gamma.predict(X[:20]))
-    lognormal = HeteroscedasticGPMDE(max_iters=2, hyperparameter_priors="lognormal", **T1).fit(X, y)
+    torch.testing.assert_close(GPMDE.load(path).predict(X[:20]), gamma.predict(X[:20]))
+    lognormal = GPMDE(max_iters=2, hyperparameter_priors="lognormal", **T1).fit(X, y)
     lognormal.save(path)
-    torch.testing.assert_close(HeteroscedasticGPMDE.load(path).predict(X[:20]), lognormal.predict(X[:20]))
+    torch.testing.assert_close(GPMDE.load(path).predict(X[:20]), lognormal.predict(X[:20]))
     with pytest.raises(ValueError, match=r"hyperparameter_priors must be one of \('none', 'gamma', 'lognormal'\), "
                                          r"got 'cauchy'"):
-        HeteroscedasticGPMDE(hyperparameter_priors="cauchy")
+        GPMDE(hyperparameter_priors="cauchy")

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from mde import HeteroscedasticGPMDE
+from mde import GPMDE
 
 DATA = Path(__file__).parent / "data" / "mde_abnormal_line_search.pt"
 
@@ -17,7 +17,7 @@ def test_fit_survives_abnormal_line_search_stops():
     d = torch.load(DATA)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        mde = HeteroscedasticGPMDE(num_threads=1).fit(d["X"], d["y"])
+        mde = GPMDE(num_threads=1).fit(d["X"], d["y"])
     assert mde.is_fitted
     assert not [w for w in caught if "keeping the" in str(w.message)]
     mean, std = mde.predict(d["X"])
@@ -71,7 +71,7 @@ def test_predict_matches_an_explicit_posterior_on_simulator_features():
     GPyTorch's posterior, and the noise cache against the same reference."""
     d = torch.load(Path(__file__).parent / "data" / "mde_noise_extrapolation.pt")
     # maximum likelihood: the degenerate lengthscales this test is about (hyperparameter priors keep them off)
-    mde = HeteroscedasticGPMDE(num_threads=1, hyperparameter_priors="none").fit(d["X"], d["y"])
+    mde = GPMDE(num_threads=1, hyperparameter_priors="none").fit(d["X"], d["y"])
     _, std = mde.predict(d["X_query"])
     f = mde._fitted
     Xq = d["X_query"].double()
@@ -88,7 +88,7 @@ def test_predict_matches_an_explicit_posterior_on_simulator_features():
 
 def test_noise_never_exceeds_the_largest_training_noise():
     d = torch.load(Path(__file__).parent / "data" / "mde_noise_extrapolation.pt")
-    mde = HeteroscedasticGPMDE(num_threads=1).fit(d["X"], d["y"])
+    mde = GPMDE(num_threads=1).fit(d["X"], d["y"])
     far = d["X"] + torch.linspace(-3.0, 3.0, d["X"].shape[1])
     cap = float(mde._fitted.noise_train[1].max().exp().sqrt())
     assert (mde.noise_std(far) <= cap * (1 + 1e-6)).all()
@@ -108,7 +108,7 @@ def test_fit_with_a_vanishing_lengthscale_on_a_barely_varying_feature():
     d = torch.load(Path(__file__).parent / "data" / "mde_tiny_lengthscale_fit.pt")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        mde = HeteroscedasticGPMDE(num_threads=1, hyperparameter_priors="none").fit(d["X"], d["y"])  # maximum likelihood
+        mde = GPMDE(num_threads=1, hyperparameter_priors="none").fit(d["X"], d["y"])  # maximum likelihood
     assert mde.is_fitted and not [w for w in caught if "keeping the" in str(w.message)]
     assert mde.model.covar_module.base_kernel.lengthscale.min() < 1e-6  # the regime this test is about
     mean, std = mde.predict(d["X"])
@@ -146,14 +146,14 @@ def test_grouped_acquisition_reads_the_fits_own_factorisation():
 
 
 def test_the_ungrouped_mde_gives_acquisitions_the_same_factorisation():
-    """The same 40 pours on one GP (the ablation ``mde._target_=mde.HeteroscedasticGPMDE``): the acquisitions'
+    """The same 40 pours on one GP (the ablation ``mde._target_=mde.GPMDE``): the acquisitions'
     view (``marginal_model``, what ``active.loop.acquisition_factory`` hands them) reads the fit's cache."""
     from active.acquisition import DiscountedMaxUCB
 
     d = torch.load(Path(__file__).parent / "data" / "mde_gpytorch_cholesky_cap.pt")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        mde = HeteroscedasticGPMDE(num_threads=1).fit(d["X"], d["y"])
+        mde = GPMDE(num_threads=1).fit(d["X"], d["y"])
     trajectories = d["X"][:36].reshape(4, 9, -1)
     post = mde.marginal_model.posterior(trajectories, observation_noise=True)
     mean, std = mde.predict(d["X"][:36])
@@ -177,7 +177,7 @@ def test_lognormal_priors_keep_small_data_fits_off_the_degenerate_optima(case):
     cfg = dict(heteroscedastic=False, label_max=0.1, num_threads=1)
 
     def fitted(priors: str) -> tuple[float, float]:
-        gp = HeteroscedasticGPMDE(cfg, hyperparameter_priors=priors).fit(d["X"], d["y"])._fitted.mean_model
+        gp = GPMDE(cfg, hyperparameter_priors=priors).fit(d["X"], d["y"])._fitted.mean_model
         Xt = gp.train_inputs[0]
         span = Xt.max(0).values - Xt.min(0).values
         rel = (gp.covar_module.base_kernel.lengthscale.detach().ravel() / span.clamp_min(1e-12))[span > 0]

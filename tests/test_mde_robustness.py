@@ -10,7 +10,7 @@ import torch
 from linear_operator.utils.errors import NotPSDError
 
 import mde.gp
-from mde import GroupedMDE, HeteroscedasticGPMDE, MDEConfig
+from mde import GroupedMDE, GPMDE, MDEConfig
 from mde.gp import safe_cholesky
 
 T1 = {"num_threads": 1, "max_iters": 2}  # see tests/test_mde_model.py
@@ -41,12 +41,12 @@ def _data(n: int = 30, d: int = 2, seed: int = 0) -> tuple[torch.Tensor, torch.T
 )
 def test_fit_rejects_bad_input(X, y, match):
     with pytest.raises(ValueError, match=match):
-        HeteroscedasticGPMDE().fit(X, y)
+        GPMDE().fit(X, y)
 
 
 def test_predict_rejects_bad_input():
     X, y = _data()
-    m = HeteroscedasticGPMDE(heteroscedastic=False, **T1).fit(X, y)
+    m = GPMDE(heteroscedastic=False, **T1).fit(X, y)
     with pytest.raises(ValueError, match="2-D"):
         m.predict(X[0])
     with pytest.raises(ValueError, match="d=3 features but the MDE was fitted with d=2"):
@@ -55,7 +55,7 @@ def test_predict_rejects_bad_input():
         m.predict(torch.tensor([[0.1, float("nan")]], dtype=torch.float64))
 
 
-def _check_consistent(m: HeteroscedasticGPMDE, Xq: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def _check_consistent(m: GPMDE, Xq: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     mean, std = m.predict(Xq)
     assert torch.isfinite(mean).all() and torch.isfinite(std).all() and (std > 0).all()
     post = m.model.posterior(Xq.unsqueeze(1), observation_noise=True)
@@ -69,7 +69,7 @@ def test_duplicate_inputs(heteroscedastic):
     g = torch.Generator().manual_seed(1)
     X2 = torch.cat([X, X, X])  # every input three times, different labels
     y2 = (y.repeat(3) + 0.05 * torch.randn(45, generator=g, dtype=torch.float64)).clamp_min(0.0)
-    m = HeteroscedasticGPMDE(heteroscedastic=heteroscedastic, predict_dtype="float64", **T1).fit(X2, y2)
+    m = GPMDE(heteroscedastic=heteroscedastic, predict_dtype="float64", **T1).fit(X2, y2)
     assert m.is_fitted and m.n_train == 45
     _check_consistent(m, X)
 
@@ -79,7 +79,7 @@ def test_duplicate_inputs(heteroscedastic):
 def test_constant_labels(heteroscedastic, value):
     X, _ = _data(20)
     y = torch.full((20,), value, dtype=torch.float64)
-    m = HeteroscedasticGPMDE(heteroscedastic=heteroscedastic, predict_dtype="float64", **T1).fit(X, y)
+    m = GPMDE(heteroscedastic=heteroscedastic, predict_dtype="float64", **T1).fit(X, y)
     mean, std = _check_consistent(m, X)
     assert float((mean - value).abs().max()) < 0.01 + 0.1 * value
     assert float(m.prior_mean_z) == pytest.approx(-value)  # sigma_z falls back to 1 for constant labels
@@ -89,7 +89,7 @@ def test_constant_labels(heteroscedastic, value):
 def test_single_point(heteroscedastic):
     X = torch.tensor([[0.2, 0.7]], dtype=torch.float64)
     y = torch.tensor([0.3], dtype=torch.float64)
-    m = HeteroscedasticGPMDE(heteroscedastic=heteroscedastic, predict_dtype="float64", **T1).fit(X, y)
+    m = GPMDE(heteroscedastic=heteroscedastic, predict_dtype="float64", **T1).fit(X, y)
     mean, std = _check_consistent(m, torch.cat([X, X + 100.0]))
     assert 0.0 <= float(mean[0]) <= 0.3 + 1e-9  # shrunk towards the zero-deviation prior
     assert abs(float(mean[1])) < 1e-6  # far away: the prior
@@ -97,7 +97,7 @@ def test_single_point(heteroscedastic):
 
 def test_refit_on_empty_data_returns_to_prior():
     X, y = _data()
-    m = HeteroscedasticGPMDE(heteroscedastic=False, **T1).fit(X, y)
+    m = GPMDE(heteroscedastic=False, **T1).fit(X, y)
     m.fit(X[:0], y[:0])
     assert not m.is_fitted
     mean, std = m.predict(X)
@@ -126,7 +126,7 @@ _IGNORE_BOTORCH = "ignore::botorch.exceptions.warnings.OptimizationWarning"  # b
 @pytest.mark.filterwarnings(_IGNORE_BOTORCH)
 def test_factorisation_failure_keeps_previous_fit(monkeypatch):
     X, y = _data()
-    m = HeteroscedasticGPMDE(**T1).fit(X, y)
+    m = GPMDE(**T1).fit(X, y)
     before = m.predict(X)
     monkeypatch.setattr(mde.gp, "safe_cholesky", _always_fails)
     X2, y2 = _data(40, seed=5)
@@ -142,7 +142,7 @@ def test_factorisation_failure_without_previous_fit_keeps_prior(monkeypatch):
     monkeypatch.setattr(mde.gp, "safe_cholesky", _always_fails)
     X, y = _data()
     with pytest.warns(RuntimeWarning, match="keeping the prior"):
-        m = HeteroscedasticGPMDE(**T1).fit(X, y)
+        m = GPMDE(**T1).fit(X, y)
     assert not m.is_fitted
     assert torch.equal(m.predict(X)[1], torch.ones(30, dtype=torch.float64))
 
@@ -163,10 +163,10 @@ def test_noise_model_failure_falls_back_to_the_homoscedastic_gp(monkeypatch):
     monkeypatch.setattr(mde.model, "fit_gp", noise_fit_fails)
     X, y = _data()
     with pytest.warns(RuntimeWarning, match="using the homoscedastic GP"):
-        m = HeteroscedasticGPMDE(**T1).fit(X, y)
+        m = GPMDE(**T1).fit(X, y)
     assert m.is_fitted and m.noise_model is None and "noise model" in m.fit_info["heteroscedastic_error"]
     monkeypatch.setattr(mde.model, "fit_gp", real)
-    homo = HeteroscedasticGPMDE(**T1, heteroscedastic=False).fit(X, y)
+    homo = GPMDE(**T1, heteroscedastic=False).fit(X, y)
     assert torch.equal(m.predict(X)[0], homo.predict(X)[0])
 
 
@@ -195,15 +195,15 @@ def test_config_validation_names_field_and_allowed_values(field, value, match):
     with pytest.raises(ValueError, match=match):
         MDEConfig(**{field: value})
     with pytest.raises(ValueError, match=match):
-        HeteroscedasticGPMDE(**{field: value})
+        GPMDE(**{field: value})
 
 
 def test_config_unknown_key_and_mapping():
     with pytest.raises(ValueError, match="unknown MDE config field"):
         MDEConfig.from_dict({"nu": 2.5, "lengthscale": 1.0})
-    cfg = MDEConfig.from_dict({"_target_": "mde.HeteroscedasticGPMDE", "nu": 1.5})
+    cfg = MDEConfig.from_dict({"_target_": "mde.GPMDE", "nu": 1.5})
     assert cfg.nu == 1.5
-    assert HeteroscedasticGPMDE({"heteroscedastic": False}, nu=0.5).config == MDEConfig(heteroscedastic=False, nu=0.5)
+    assert GPMDE({"heteroscedastic": False}, nu=0.5).config == MDEConfig(heteroscedastic=False, nu=0.5)
 
 
 def test_yaml_lists_exactly_the_dataclass_fields_with_its_defaults():
@@ -227,5 +227,5 @@ def test_hydra_instantiate():
     cfg.heteroscedastic = False
     m = instantiate(cfg)
     assert isinstance(m, GroupedMDE) and m.config.heteroscedastic is False and m.config.group_column == 5
-    cfg.update({"_target_": "mde.HeteroscedasticGPMDE", "group_column": None})
-    assert isinstance(instantiate(cfg), HeteroscedasticGPMDE)
+    cfg.update({"_target_": "mde.GPMDE", "group_column": None})
+    assert isinstance(instantiate(cfg), GPMDE)

@@ -37,10 +37,10 @@ def standin_mde():
 @pytest.fixture(scope="module")
 def real_mde():
     """The experiment's MDE class, fitted small (what the loop sends after every refit)."""
-    from mde import HeteroscedasticGPMDE
+    from mde import GPMDE
 
     X, d = synthetic_deviation_dataset(40, np.random.default_rng(0), CFG)
-    mde = HeteroscedasticGPMDE(fit_maxiter=30, max_iters=2).fit(torch.as_tensor(X), torch.as_tensor(d))
+    mde = GPMDE(fit_maxiter=30, max_iters=2).fit(torch.as_tensor(X), torch.as_tensor(d))
     assert mde.is_fitted
     return mde
 

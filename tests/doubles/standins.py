@@ -1,8 +1,8 @@
 """STAND-INS for the learned dynamics model and the MDE (tests and ``benchmarks.planner`` only).
 
-The real dynamics model (trained on source-world simulator data) and the real heteroscedastic
-GP MDE (``mde.HeteroscedasticGPMDE``) are built elsewhere. Until they exist, the planner is
-exercised with these substitutes, which follow the same interfaces:
+The real dynamics model (trained on source-world simulator data, :mod:`dynamics`) and the real GP
+MDE (:class:`mde.GPMDE`) are slow to make; the planner's tests exercise it with these substitutes,
+which follow the same interfaces:
 
 * :class:`AnalyticPouringModel` -- closed-form pouring physics (move sets x, y; pour tips water
   out beyond a fill-dependent critical angle, at a rate set by the hold time, and it lands in
