@@ -15,6 +15,8 @@ Commands: ``python -m dynamics.train`` (Hydra, ``configs/dynamics``), ``python -
 :mod:`dynamics.shipped`) and ``python -m benchmarks.dynamics``. Depends on ``sim`` (data generation) only.
 """
 
+import importlib
+
 from .config import (DataConfig, DynamicsConfig, DynamicsError, EvalConfig, ModelConfig, TrainConfig, data_hash,
                      model_hash)
 from .data import Transitions, generate_source_dataset, generate_transitions
@@ -27,8 +29,6 @@ _LAZY = {"ContactAwareDynamics": "contact", "DynamicsEnsemble": "ensemble", "cac
 
 def __getattr__(name: str):
     if name in _LAZY:
-        import importlib
-
         return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
     raise AttributeError(f"module 'dynamics' has no attribute {name!r}")
 

@@ -21,6 +21,10 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Mapping
 
+import yaml
+
+from sim.world import DEFAULT_CONFIG, WorldConfig
+
 #: bump when the dataset layout or the generator's semantics change (invalidates cached data)
 DATA_FORMAT_VERSION = 1
 #: bump when the network / checkpoint layout changes (invalidates cached checkpoints)
@@ -307,10 +311,6 @@ def world_dict(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
     mapping is canonicalised through ``WorldConfig`` (defaults filled in), so equal worlds hash
     equally however they were given.
     """
-    import yaml
-
-    from sim.world import DEFAULT_CONFIG, WorldConfig
-
     if world_cfg is None:
         path = Path(data.world) if data.world else DEFAULT_CONFIG
         if not path.is_file():
@@ -332,8 +332,6 @@ def solver_dict(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
     Part of the data hash so that a physics default that changes (e.g. ``sim.volume_correction``)
     invalidates cached datasets even when the world YAML does not change.
     """
-    from sim.world import WorldConfig
-
     world = WorldConfig.from_mapping(world_dict(data, world_cfg))
     sim = dataclasses.asdict(world.sim_config(1))
     for k in ("n_envs", "arch", "max_particles"):
@@ -468,6 +466,8 @@ def _plain(v: Any) -> Any:
 def _to_plain(d: Any) -> Any:
     if d is None:
         return None
+    # imported here: planner worker processes load this module with the model they unpickle and never see a
+    # Hydra node, so they need not import omegaconf
     from omegaconf import DictConfig, ListConfig, OmegaConf
 
     if isinstance(d, (DictConfig, ListConfig)):

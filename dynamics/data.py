@@ -24,17 +24,22 @@ from typing import Any
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
 import safeio
+from sim.scene import Body
+from sim.skills import Obstacles, cup_boundary, plan_schedule
+from sim.world import WorldConfig
+from task import ACTION_DIM, STATE_DIM, check_world, sample_problems
+from task import SKILL_MOVE as MOVE
+from task import SKILL_POUR as POUR
 
-from .config import DATA_FORMAT_VERSION, TRAIN_COMMAND, DataConfig, DynamicsError
+from .config import (DATA_FORMAT_VERSION, POUR_FIELDS, TRAIN_COMMAND, DataConfig, DynamicsError, _digest, _plain,
+                     data_format, solver_dict, without_goal_range, world_dict)
 
 log = logging.getLogger(__name__)
 
 DATASET_FORMAT = "active-mde/dynamics-dataset"
-from task import ACTION_DIM, STATE_DIM  # noqa: E402
-from task import SKILL_MOVE as MOVE  # noqa: E402
-from task import SKILL_POUR as POUR  # noqa: E402
 #: arrays of a dataset: name -> (trailing shape, dtype)
 FIELDS: dict[str, tuple[tuple[int, ...], Any]] = {
     "s": ((STATE_DIM,), np.float32),
@@ -188,8 +193,6 @@ class SequenceSampler:
     """
 
     def __init__(self, data: DataConfig, wcfg: Any):
-        from sim.skills import cup_boundary
-
         self.data = data
         self.wcfg = wcfg
         self.move_x = tuple(wcfg.skills["move"]["x"])
@@ -201,8 +204,6 @@ class SequenceSampler:
         self.interior_hi = np.asarray(wcfg.sim["domain"], float) - wcfg.floor
 
     def obstacles(self, world: str, jitter: np.ndarray) -> Any:
-        from sim.skills import Obstacles
-
         return Obstacles(self.wcfg.obstacle_bodies(world, jitter), self.interior_lo, self.interior_hi)
 
     def start(self, rng: np.random.Generator, obstacles: Any) -> np.ndarray:
@@ -256,8 +257,6 @@ class SequenceSampler:
     def sample(self, rng: np.random.Generator, world: str, jitter: np.ndarray,
                keep_all_stuck: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """One (start (2,), actions (T, 3)) pair, cut to ``max_sim_seconds``; stuck ones mostly resampled."""
-        from sim.skills import plan_schedule
-
         obst = self.obstacles(world, jitter)
         h = self.wcfg.control_dt
         for _ in range(100):
@@ -294,10 +293,7 @@ def generate_transitions(data: DataConfig, world: str = "source", n_batches: int
     ``world_cfg`` (WorldConfig or mapping) replaces the ``data.world`` file (see
     :func:`dynamics.config.world_dict`).
     """
-    from tqdm.auto import tqdm
-
-    from sim.execute import PouringExecutor
-    from task.problems import check_world, sample_problems
+    from sim.execute import PouringExecutor  # Taichi: loaded only to simulate, not by `import dynamics`
 
     check_world(world)
     n_batches = (data.pour_batches if pours else data.n_batches) if n_batches is None else int(n_batches)
@@ -348,7 +344,7 @@ def generate_transitions(data: DataConfig, world: str = "source", n_batches: int
         _add_counts(counts, c)
         bar.set_postfix(transitions=sum(len(p) for p in parts), unstable=counts["unstable"])
     bar.close()
-    from sim.backend import cpu_fingerprint
+    from sim.backend import cpu_fingerprint  # Taichi, as above
 
     out = Transitions.concat(parts)
     out.meta = {**(meta or {}), "world": world, "seed": seed, "n_batches": n_batches, "batch_size": B,
@@ -362,8 +358,6 @@ def shard_identity(data: DataConfig, wcfg: Any, pours: bool = False) -> str:
     """Digest of what a batch's content depends on besides its key: the generator fields (not the
     batch counts; the focused-pour fields only for a focused-pour batch) and the world, so a shard left
     by another configuration is never reused."""
-    from .config import POUR_FIELDS, _digest, data_format, solver_dict, without_goal_range, world_dict
-
     d = _plain_data(data)
     for k in ("world", "n_batches", "pour_batches") + (() if pours else POUR_FIELDS):
         d.pop(k, None)
@@ -380,10 +374,6 @@ def generate_source_dataset(cfg: Any, shard_dir: str | Path | None = None, progr
 
 def load_world(data: DataConfig, world_cfg: Any = None) -> Any:
     """The ``sim.world.WorldConfig`` for ``data`` (``world_cfg`` overrides the ``data.world`` file)."""
-    from sim.world import WorldConfig
-
-    from .config import world_dict
-
     if world_cfg is not None and isinstance(world_cfg, WorldConfig):
         return world_cfg
     return WorldConfig.from_mapping(world_dict(data, world_cfg))
@@ -419,8 +409,6 @@ def _add_counts(total: dict, c: dict) -> None:
 
 
 def _plain_data(data: DataConfig) -> dict:
-    from .config import _plain
-
     return _plain(data)
 
 
@@ -442,8 +430,6 @@ def plant_clearance(wcfg: Any, tr: Transitions, world: str = "target", stream_sp
     Values are capped at ``CLEARANCE_CAP`` (0.1 m: "at least that far").
     ``inf`` in the source world.
     """
-    from sim.skills import Obstacles, cup_boundary, plan_schedule
-
     if world != "target":
         return np.full(len(tr), np.inf)
     boundary = cup_boundary(wcfg, spacing=0.01)
@@ -494,9 +480,6 @@ def plant_clearance(wcfg: Any, tr: Transitions, world: str = "target", stream_sp
 
 def _inside_plant(wcfg: Any, jit: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Points inside a plant shape (sign of the colliders' SDF, which is exact at the surface)."""
-    from sim.scene import Body
-    from sim.skills import Obstacles
-
     far = np.full(2, 1e6)
     plant = Obstacles([Body("plant", pose=wcfg.plant_pose(jit), shapes=wcfg.plant_shapes())], -far, far)
     d, _ = plant.sdf(pts)

@@ -27,13 +27,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from hydra import compose, initialize_config_dir
 
 import safeio
+from task import STATE_NAMES
 
 from .config import DynamicsConfig, _digest, _plain, data_hash, ensemble_member, plant_dict
 from .data import CLEARANCE_CAP, Transitions, generate_transitions, load_world, plant_clearance
-from .train import (CONFIG_DIR, STATE_NAMES, _errors, _locked, cache_paths, format_errors, load_or_generate_dataset,
-                    load_or_train, split_by_trajectory)
+from .train import (CONFIG_DIR, _errors, _locked, cache_paths, format_errors, load_or_generate_dataset, load_or_train,
+                    split_by_trajectory)
 
 log = logging.getLogger(__name__)
 GROUPS = ("source_val", "source_test", "target_far", "target_near")
@@ -41,8 +43,6 @@ GROUPS = ("source_val", "source_test", "target_far", "target_near")
 
 def compose_config(config_name: str = "default", overrides: list[str] | None = None) -> DynamicsConfig:
     """The same config ``python -m dynamics.train --config-name NAME OVERRIDES`` would use."""
-    from hydra import compose, initialize_config_dir
-
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base=None):
         return DynamicsConfig.from_dict(compose(config_name=config_name, overrides=list(overrides or [])))
 
@@ -126,7 +126,7 @@ def evaluate(cfg: DynamicsConfig, cache_root: str | Path | None = None, world_cf
 
 
 def plot(result: dict[str, Any], path: Path) -> None:
-    import matplotlib
+    import matplotlib  # only to plot: matplotlib takes about half a second to import
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -42,6 +42,7 @@ from torch import Tensor, nn
 import safeio
 
 from .config import MODEL_FORMAT_VERSION, DynamicsError, ModelConfig
+from .data import atomic_torch_save, load_tagged
 
 CHECKPOINT_FORMAT = "active-mde/dynamics-checkpoint"
 STATE_DIM, ACTION_DIM = 5, 3
@@ -421,8 +422,6 @@ class LearnedDynamics(nn.Module):
     # ------------------------------------------------------------------ checkpoints
     def save(self, path: str | Path) -> Path:
         """Atomic checkpoint: format tag, model config, ``info`` (config, hashes, metrics), weights + statistics."""
-        from .data import atomic_torch_save
-
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         payload = {"format": CHECKPOINT_FORMAT, "version": MODEL_FORMAT_VERSION,
@@ -437,8 +436,6 @@ class LearnedDynamics(nn.Module):
     @classmethod
     def load(cls, path: str | Path, expected_hash: str | None = None) -> "LearnedDynamics":
         """Load a checkpoint; ``expected_hash`` (the config's model hash) guards against a stale one."""
-        from .data import load_tagged
-
         path = Path(path)
         payload, fix = load_tagged(path, "checkpoint", CHECKPOINT_FORMAT, MODEL_FORMAT_VERSION, "retrain", "train")
         try:

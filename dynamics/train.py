@@ -11,13 +11,18 @@ generating, so an interrupted run resumes) and ``model-<model_hash>/model.pt`` (
 content, the model hash the data hash plus model and training fields (see
 :mod:`dynamics.config`), so changing e.g. ``train.lr`` retrains on the cached data. Concurrent
 runs (Hydra multirun) wait on a file lock instead of generating the same data twice.
+
+Shipped files: the default configuration's dataset and single models ship with the package under
+``dynamics/shipped/`` (``source-<data_hash>.pt``, ``model-<model_hash>.pt``); the cache copies a shipped
+file in instead of simulating or training when its hash is the one the requested configuration needs.
+``python -m dynamics.shipped`` makes them (:mod:`dynamics.shipped`).
 """
 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import copy
+import dataclasses
 import fcntl
 import logging
 import shutil
@@ -26,8 +31,10 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
+import hydra
 import numpy as np
 import torch
+import yaml
 from tqdm.auto import tqdm
 
 import configs
@@ -35,14 +42,17 @@ import safeio
 from task import STATE_NAMES
 from task.threads import torch_threads
 
+from . import data as data_mod
 from .config import (TRAIN_COMMAND, DataConfig, DynamicsConfig, DynamicsError, ModelConfig, TrainConfig,
                      data_hash, model_hash, single_models)
-from .ensemble import DynamicsEnsemble
 from .data import MOVE, POUR, Transitions, load_world
+from .ensemble import DynamicsEnsemble
 from .model import SKILLS, LearnedDynamics
 
 log = logging.getLogger(__name__)
 CONFIG_DIR = configs.path("dynamics")
+#: the shipped dataset and single models of the default configuration
+SHIPPED_DIR = Path(__file__).resolve().parent / "shipped"
 
 Generator = Callable[..., Transitions]
 
@@ -214,8 +224,6 @@ def load_or_generate_dataset(cfg: DynamicsConfig | Mapping[str, Any] | None = No
     ``use_shipped``, a dataset shipped with the package for the same data hash
     (:mod:`dynamics.shipped`) is copied into the cache instead of simulating it.
     """
-    from . import data as data_mod
-
     c = _as_config(cfg)
     p = cache_paths(c, cache_root, world_cfg)
     path, dh = p["dataset"], p["data_hash"]
@@ -224,8 +232,6 @@ def load_or_generate_dataset(cfg: DynamicsConfig | Mapping[str, Any] | None = No
         with _locked(folder):
             _remove_orphans(folder, shard_dir)
             if not path.is_file() and generator is None and use_shipped:
-                from .shipped import install_shipped
-
                 install_shipped(path, dh)
             if not path.is_file():
                 show = c.progress if progress is None else progress
@@ -259,8 +265,6 @@ def _unfinished_data(path: Path) -> bool:
 
 def _finish_data(path: Path, c: DynamicsConfig, dh: str) -> None:
     """Write the dataset folder's config.yaml and drop its shards (call with the folder's lock held)."""
-    import yaml
-
     if not (path.parent / "config.yaml").is_file():
         safeio.write_text(path.parent / "config.yaml", yaml.safe_dump({"data": c.to_dict()["data"], "data_hash": dh}))
     shutil.rmtree(path.parent / "parts", ignore_errors=True)
@@ -279,8 +283,6 @@ def load_or_train(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_r
     generator and ``use_shipped``, a checkpoint shipped with the package for the same model hash
     (:mod:`dynamics.shipped`) is copied into the cache instead of training.
     """
-    import yaml
-
     c = _as_config(cfg)
     p = cache_paths(c, cache_root, world_cfg)
     if c.model.ensemble > 1:
@@ -296,8 +298,6 @@ def load_or_train(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_r
         with _locked(folder):
             _remove_orphans(folder)
             if not ckpt.is_file() and generator is None and use_shipped:
-                from .shipped import install_shipped_model
-
                 install_shipped_model(ckpt, mh)
             if not ckpt.is_file():
                 ds = load_or_generate_dataset(c, p["root"], generator, progress, world_cfg)
@@ -334,6 +334,59 @@ def _remove_orphans(*folders: Path) -> None:
             log.info("removed %s, left by a killed writer", tmp)
 
 
+# ---------------------------------------------------------------------------------- shipped files
+def shipped_path(data_hash: str) -> Path:
+    """Where the shipped dataset of a data hash lives (whether or not it exists)."""
+    return SHIPPED_DIR / f"source-{data_hash}.pt"
+
+
+def find_shipped(data_hash: str) -> Path | None:
+    """The shipped dataset for ``data_hash``, or None (the shipped files of other hashes are named in the log;
+    ``tests/test_dynamics_shipped.py`` fails when the default config's file is missing or stale)."""
+    path = shipped_path(data_hash)
+    if path.is_file():
+        return path
+    others = sorted(p.name for p in SHIPPED_DIR.glob("source-*.pt")) if SHIPPED_DIR.is_dir() else []
+    if others:
+        log.info("the shipped source-world dataset(s) %s were made by another configuration (this one needs "
+                 "data hash %s): generating the data instead (run `python -m dynamics.shipped` to refresh "
+                 "the shipped file)", others, data_hash)
+    return None
+
+
+def shipped_model_path(model_hash: str) -> Path:
+    """Where the shipped checkpoint of a (single-model) model hash lives (whether or not it exists)."""
+    return SHIPPED_DIR / f"model-{model_hash}.pt"
+
+
+def install_shipped_model(checkpoint: Path, model_hash: str) -> bool:
+    """Copy the shipped checkpoint for ``model_hash`` to ``checkpoint`` (atomically); False if there is none."""
+    src = shipped_model_path(model_hash)
+    if not src.is_file():
+        if SHIPPED_DIR.is_dir() and any(SHIPPED_DIR.glob("model-*.pt")):
+            log.info("no shipped dynamics model for model hash %s (the shipped ones were trained with another "
+                     "configuration): training it", model_hash)
+        return False
+    try:  # a damaged or mislabelled file is never copied into the cache
+        LearnedDynamics.load(src, expected_hash=model_hash)
+    except DynamicsError as e:
+        log.warning("the shipped dynamics model %s cannot be used (%s): training it instead", src.name, e)
+        return False
+    safeio.atomic_write(checkpoint, src.read_bytes())
+    log.info("using the shipped dynamics model %s", src.name)
+    return True
+
+
+def install_shipped(dataset: Path, data_hash: str) -> bool:
+    """Copy the shipped dataset for ``data_hash`` to ``dataset`` (atomically); False if there is none."""
+    src = find_shipped(data_hash)
+    if src is None:
+        return False
+    safeio.atomic_write(dataset, src.read_bytes())
+    log.info("using the shipped source-world dataset %s (data hash %s)", src.name, data_hash)
+    return True
+
+
 # ---------------------------------------------------------------------------------- CLI
 def format_errors(table: Mapping[str, Any], title: str = "") -> str:
     cols = ["n", *[f"mae_{c}" for c in STATE_NAMES], "mean_d", "p90_d", "frac_d_gt_0.07"]
@@ -353,8 +406,6 @@ def _run(cfg: Any) -> LearnedDynamics | DynamicsEnsemble:
     t0 = time.perf_counter()
     singles = single_models(c)
     had_data = p["dataset"].is_file()
-    from .shipped import shipped_model_path
-
     had_model = ["cached" if cache_paths(m)["checkpoint"].is_file()
                  else "shipped" if shipped_model_path(cache_paths(m)["model_hash"]).is_file()
                  else "trained" for m in singles]
@@ -375,8 +426,6 @@ def _run(cfg: Any) -> LearnedDynamics | DynamicsEnsemble:
 
 def main(argv: list[str] | None = None) -> None:
     """Hydra entry point (``configs/dynamics``); any field can be overridden as ``key=value``."""
-    import hydra
-
     if argv is not None:
         sys.argv = [sys.argv[0], *argv]
     hydra.main(config_path=str(CONFIG_DIR), config_name="default", version_base=None)(_run)()

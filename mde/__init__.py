@@ -15,23 +15,14 @@ heteroscedastic model (``MDEConfig.heteroscedastic``).
 from typing import Any
 
 from .config import MDEConfig
-from .grouped import GroupedMDE
+from .grouped import GroupedMDE, load
 from .model import GPMDE
 
 __all__ = ["GroupedMDE", "GPMDE", "MDEConfig", "calibration_report", "load"]
 
 
-def load(path: Any) -> "GPMDE | GroupedMDE":
-    """Load a saved MDE of either kind (the file names its format)."""
-    import torch
-
-    payload = torch.load(path, map_location="cpu", weights_only=True)
-    cls = GroupedMDE if isinstance(payload, dict) and payload.get("format") == "mde.GroupedMDE" else GPMDE
-    return cls.load(path)
-
-
 def __getattr__(name: str) -> Any:
-    # Lazy, so that ``python -m mde.calibration`` does not import the module twice.
+    # Lazy, so that ``python -m mde.calibration`` does not find its own module imported already.
     if name == "calibration_report":
         from .calibration import calibration_report
 

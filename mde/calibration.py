@@ -24,6 +24,8 @@ from torch import Tensor
 
 import safeio
 
+from .grouped import load
+
 REPORT_LEVELS = (0.5, 0.8, 0.95)
 #: Levels of the reliability curve (expected coverage on the x axis).
 CURVE_LEVELS = tuple(round(0.05 * k, 2) for k in range(1, 20)) + (0.99,)
@@ -127,7 +129,7 @@ def reliability_plot(report: dict[str, Any], path: str | Path, title: str = "MDE
     Drawn on an Agg canvas without pyplot, so it neither needs a display nor changes the
     process-wide matplotlib backend.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # only to plot: about half a second to import
     from matplotlib.figure import Figure
 
     expected = report["reliability"]["expected"]
@@ -164,9 +166,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--raw-labels", action="store_true",
                         help="compare with the raw labels, not capped at the model's label_max as it fits them")
     args = parser.parse_args(argv)
-
-    from . import load
-
     mde = load(args.model)
     X, y = load_heldout(args.data)
     report = calibration_report(mde, X, y, as_fitted=not args.raw_labels)

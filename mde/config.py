@@ -13,6 +13,8 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any, Mapping
 
+import yaml
+
 ALLOWED_NU = (0.5, 1.5, 2.5)
 ALLOWED_INPUT_SCALING = ("none", "normalize")
 ALLOWED_PREDICT_DTYPE = ("float32", "float64")
@@ -181,8 +183,6 @@ class MDEConfig:
     @classmethod
     def from_yaml(cls, path: str | Path) -> "MDEConfig":
         """Read a YAML file such as ``configs/mde/default.yaml``."""
-        import yaml
-
         with open(path, encoding="utf-8") as fh:
             return cls.from_dict(yaml.safe_load(fh))
 

@@ -196,3 +196,10 @@ class GroupedMDE:
     def __repr__(self) -> str:
         parts = ", ".join(f"{g:g}: {c.n_train}" for g, c in sorted(self._children.items()))
         return f"GroupedMDE(group_column={self._config.group_column}, n_train per group {{{parts}}})"
+
+
+def load(path: str | os.PathLike) -> GPMDE | GroupedMDE:
+    """Load a saved MDE of either kind (the file names its format)."""
+    payload = torch.load(Path(path), map_location="cpu", weights_only=True)
+    cls = GroupedMDE if isinstance(payload, dict) and payload.get("format") == _FORMAT else GPMDE
+    return cls.load(path)

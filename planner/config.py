@@ -209,7 +209,8 @@ def _known(cls: type, data: Mapping[str, Any], what: str) -> dict[str, Any]:
 
 
 def _to_plain(d: Any) -> Any:
-    """Convert an OmegaConf container to plain Python without importing omegaconf eagerly."""
+    """Convert an OmegaConf container to plain Python. omegaconf is imported here, not at the top: planner
+    worker processes import this module and never get a Hydra node."""
     if d is None:
         return None
     try:

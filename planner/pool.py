@@ -44,12 +44,15 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import importlib
 import logging
+import multiprocessing
 import os
 import pickle
 import shutil
 import signal
 import tempfile
+import threading
 import time
 from collections import OrderedDict
 from concurrent.futures import Future, ProcessPoolExecutor, wait
@@ -59,6 +62,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
+import torch
 
 from .config import PlannerConfig
 from .interfaces import DeviationEstimator, DynamicsModel
@@ -220,8 +224,6 @@ class PlanPool:
             payload = dumps(self.dynamics)
             pickle.loads(payload)  # fail here, with the reason, rather than in every worker's initializer
             self._tmp = Path(tempfile.mkdtemp(prefix="planpool-"))
-            import multiprocessing
-
             ctx = multiprocessing.get_context("spawn")
             with _thread_env():  # inherited by the children at spawn time
                 self._executor = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker,
@@ -455,13 +457,9 @@ def _init_worker(dynamics_payload: bytes, config: PlannerConfig, preload: tuple[
     _exit_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     os.environ.update({k: "1" for k in _THREAD_ENV})
-    import torch
-
     torch.set_num_threads(int(config.torch_threads or 1))
     with contextlib.suppress(RuntimeError):  # only possible before any inter-op work
         torch.set_num_interop_threads(1)
-    import importlib
-
     for name in preload:
         importlib.import_module(name)
     _WORKER.update(dynamics=pickle.loads(dynamics_payload), config=config, mdes=OrderedDict())
@@ -473,9 +471,6 @@ def _exit_with_parent() -> None:
     Without this an orphaned worker waits for work forever: it holds the write end of its own
     task queue, so it never sees end-of-file there.
     """
-    import multiprocessing
-    import threading
-
     parent = multiprocessing.parent_process()
     if parent is None:  # pragma: no cover - always set for spawned children
         return

@@ -10,7 +10,7 @@ import pytest
 
 import dynamics.shipped as shipped
 from dynamics import train as train_mod
-from dynamics.config import DynamicsConfig
+from dynamics.config import DynamicsConfig, single_models
 from dynamics.data import Transitions, generate_transitions
 from dynamics.train import cache_paths, load_or_generate_dataset
 from tests.doubles.synthetic import synthetic_generator
@@ -26,13 +26,29 @@ def _default():
 
 def test_default_config_has_its_shipped_dataset():
     c, dh = _default()
-    path = shipped.find_shipped(dh)
+    path = train_mod.find_shipped(dh)
     assert path is not None, (f"no shipped dataset for the default config (data hash {dh}): the world, solver or data "
                               f"config changed; refresh it with `python -m dynamics.shipped`")
     ds = Transitions.load(path, expected_hash=dh)
     assert ds.meta["world"] == "source" and ds.meta["n_batches"] == c.data.n_batches
     assert len(np.unique(ds.traj)) == (c.data.n_batches + c.data.pour_batches) * c.data.batch_size
     assert ds.meta["pours"]["n_batches"] == c.data.pour_batches  # the focused pours follow the random batches
+
+
+def test_check_says_whether_the_shipped_files_match(tmp_path, monkeypatch, capsys):
+    """``python -m dynamics.shipped --check``: every file the default config needs is there with its own hash
+    inside; a file under a needed name made by another configuration is reported stale."""
+    c, _ = _default()
+    assert shipped.check(c)
+    assert capsys.readouterr().out.count("matches the configuration") == 1 + c.model.ensemble
+    names = [train_mod.shipped_path(cache_paths(c)["data_hash"]).name] + \
+            [train_mod.shipped_model_path(cache_paths(m)["model_hash"]).name for m in single_models(c)]
+    for name in names:
+        shutil.copyfile(train_mod.SHIPPED_DIR / name, tmp_path / name)
+    shutil.copyfile(tmp_path / names[1], tmp_path / names[2])  # member 0's checkpoint under member 1's name
+    monkeypatch.setattr(train_mod, "SHIPPED_DIR", tmp_path)
+    assert not shipped.check(c)
+    assert f"shipped {names[2]}: STALE" in capsys.readouterr().out
 
 
 def test_first_shard_regenerates_bit_for_bit():
@@ -46,7 +62,7 @@ def test_first_shard_regenerates_bit_for_bit():
     from sim.backend import cpu_fingerprint
 
     c, dh = _default()
-    ds = Transitions.load(shipped.find_shipped(dh), expected_hash=dh)
+    ds = Transitions.load(train_mod.find_shipped(dh), expected_hash=dh)
     again = generate_transitions(c.data, "source", n_batches=1, progress=False)
     rows = ds.traj < c.data.batch_size
     assert rows.sum() == len(again)
@@ -66,7 +82,7 @@ def test_first_focused_pour_shard_regenerates_bit_for_bit():
     from sim.backend import cpu_fingerprint
 
     c, dh = _default()
-    ds = Transitions.load(shipped.find_shipped(dh), expected_hash=dh)
+    ds = Transitions.load(train_mod.find_shipped(dh), expected_hash=dh)
     again = generate_transitions(c.data, "source", n_batches=1, progress=False, pours=True)
     first = c.data.n_batches * c.data.batch_size
     rows = (ds.traj >= first) & (ds.traj < first + c.data.batch_size)
@@ -81,7 +97,7 @@ def test_first_focused_pour_shard_regenerates_bit_for_bit():
 
 def _ship(monkeypatch, tmp_path, src, target):
     """Make ``tmp_path/shipped`` the package's shipped folder and copy ``src`` to ``target()`` in it."""
-    monkeypatch.setattr(shipped, "SHIPPED_DIR", tmp_path / "shipped")
+    monkeypatch.setattr(train_mod, "SHIPPED_DIR", tmp_path / "shipped")
     (tmp_path / "shipped").mkdir()
     shutil.copyfile(src, target())
 
@@ -90,13 +106,13 @@ def test_shipped_file_is_used_only_for_its_own_hash(tmp_path, monkeypatch, caplo
     c = train_mod._as_config({"progress": False, "data": {"n_batches": 1, "batch_size": 4, "max_actions": 4}})
     made = load_or_generate_dataset(c, tmp_path / "a", generator=lambda cfg, **kw: synthetic_generator(cfg))
     dh = cache_paths(c, tmp_path / "a")["data_hash"]
-    _ship(monkeypatch, tmp_path, cache_paths(c, tmp_path / "a")["dataset"], lambda: shipped.shipped_path(dh))
+    _ship(monkeypatch, tmp_path, cache_paths(c, tmp_path / "a")["dataset"], lambda: train_mod.shipped_path(dh))
 
     def no_simulation(*a, **k):
         raise AssertionError("the simulator ran although a matching shipped dataset exists")
 
     monkeypatch.setattr("dynamics.data.generate_source_dataset", no_simulation)
-    with caplog.at_level(logging.INFO, logger="dynamics.shipped"):
+    with caplog.at_level(logging.INFO, logger="dynamics.train"):
         got = load_or_generate_dataset(c, tmp_path / "b")
     assert "using the shipped" in caplog.text
     np.testing.assert_array_equal(got.s_next, made.s_next)
@@ -104,14 +120,13 @@ def test_shipped_file_is_used_only_for_its_own_hash(tmp_path, monkeypatch, caplo
     other = train_mod._as_config({"progress": False, "data": {"n_batches": 1, "batch_size": 4, "max_actions": 4,
                                                                      "seed": 5}})
     caplog.clear()
-    with caplog.at_level(logging.INFO, logger="dynamics.shipped"), pytest.raises(AssertionError, match="simulator ran"):
+    with caplog.at_level(logging.INFO, logger="dynamics.train"), pytest.raises(AssertionError, match="simulator ran"):
         load_or_generate_dataset(other, tmp_path / "c")
-    assert "another configuration" in caplog.text and shipped.shipped_path(dh).name in caplog.text
+    assert "another configuration" in caplog.text and train_mod.shipped_path(dh).name in caplog.text
 
 
 def _default_members():
     from active.run import compose_config
-    from dynamics.config import single_models
 
     cfg = compose_config([])
     c = train_mod._as_config(cfg["dynamics"])
@@ -126,7 +141,7 @@ def test_default_config_has_its_shipped_models():
     cfg, members = _default_members()
     dh = cache_paths(cfg["dynamics"], None, cfg["world"])["data_hash"]
     for m, mh in members:
-        path = shipped.shipped_model_path(mh)
+        path = train_mod.shipped_model_path(mh)
         assert path.is_file(), (f"no shipped model for member seed {m.train.seed} of the default config (model hash "
                                 f"{mh}): refresh them with `python -m dynamics.shipped`")
         model = LearnedDynamics.load(path, expected_hash=mh)
@@ -141,14 +156,14 @@ def test_shipped_model_is_used_only_for_its_own_hash(tmp_path, monkeypatch, capl
                               "model": {"hidden": [8], "ensemble": 1}, "train": {"max_epochs": 2, "patience": 2}})
     made = load_or_train(c, tmp_path / "a", generator=gen)
     mh = cache_paths(c, tmp_path / "a")["model_hash"]
-    _ship(monkeypatch, tmp_path, cache_paths(c, tmp_path / "a")["checkpoint"], lambda: shipped.shipped_model_path(mh))
+    _ship(monkeypatch, tmp_path, cache_paths(c, tmp_path / "a")["checkpoint"], lambda: train_mod.shipped_model_path(mh))
 
     def no_training(*a, **k):
         raise AssertionError("trained although a matching shipped model exists")
 
     monkeypatch.setattr(train_mod, "fit", no_training)
     monkeypatch.setattr("dynamics.data.generate_source_dataset", no_training)
-    with caplog.at_level(logging.INFO, logger="dynamics.shipped"):
+    with caplog.at_level(logging.INFO, logger="dynamics.train"):
         got = load_or_train(c, tmp_path / "b")
     assert "using the shipped dynamics model" in caplog.text
     assert (tmp_path / "b" / f"model-{mh}" / "metrics.json").is_file()  # the cache entry is complete
@@ -161,9 +176,9 @@ def test_shipped_model_is_used_only_for_its_own_hash(tmp_path, monkeypatch, capl
     with pytest.raises(AssertionError, match="trained although"):  # nor when asked not to
         load_or_train(c, tmp_path / "d", use_shipped=False)
     # a damaged shipped file is not copied into the cache: the model is trained instead
-    shipped.shipped_model_path(mh).write_bytes(b"not a checkpoint")
+    train_mod.shipped_model_path(mh).write_bytes(b"not a checkpoint")
     caplog.clear()
-    with caplog.at_level(logging.INFO, logger="dynamics.shipped"), pytest.raises(AssertionError, match="trained"):
+    with caplog.at_level(logging.INFO, logger="dynamics.train"), pytest.raises(AssertionError, match="trained"):
         load_or_train(c, tmp_path / "e")
     assert "cannot be used" in caplog.text and not cache_paths(c, tmp_path / "e")["checkpoint"].exists()
 
@@ -179,9 +194,9 @@ def test_a_shipped_member_retrains_to_the_same_model(tmp_path):
 
     cfg, members = _default_members()
     m, mh = members[0]
-    shipped_model = LearnedDynamics.load(shipped.shipped_model_path(mh), expected_hash=mh)
+    shipped_model = LearnedDynamics.load(train_mod.shipped_model_path(mh), expected_hash=mh)
     again = load_or_train(m, tmp_path, world_cfg=cfg["world"], use_shipped=False)
-    ds = Transitions.load(shipped.find_shipped(shipped_model.info["data_hash"]))
+    ds = Transitions.load(train_mod.find_shipped(shipped_model.info["data_hash"]))
     idx = np.random.default_rng(0).choice(len(ds), 2000, replace=False)
     diff = np.abs(again.predict_np(ds.s[idx], ds.a[idx]) - shipped_model.predict_np(ds.s[idx], ds.a[idx]))
     assert diff.max() < 0.005, diff.max(0)
