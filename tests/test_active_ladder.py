@@ -173,7 +173,7 @@ def test_a_saved_ceiling_set_made_under_another_plant_contact_is_refused(tmp_pat
 
     from active.ladder import check_ceiling_data
 
-    stop_set = Path(__file__).parents[1] / "benchmarks" / "ceiling_sets" / "s28_stop_seed0.npz"
+    stop_set = Path(__file__).parents[1] / "data" / "ceiling_sets" / "stop_seed0.npz"
     with pytest.raises(SystemExit, match=r"made with world.plant.on_contact=stop, but the run has "
                                          r"world.plant.on_contact=stuck"):
         main(["--out", str(tmp_path / "x"), "--rungs", "ceiling", "--ceiling-data", str(stop_set)])
