@@ -1,5 +1,5 @@
-"""Tooling next to its results: benchmarks, validation, checks and demos, run as ``python -m benchmarks.X``
-from the repository root (the JSON files here are what they wrote).
+"""Tooling: benchmarks, validation, checks and demos, run as ``python -m benchmarks.X`` from the repository
+root (``README.md`` here lists them; ``results/`` holds the JSON that BENCHMARKS.md cites).
 
 Not part of the installed product: no product package (``sim``, ``mde``, ``planner``, ``dynamics``,
 ``active``, ``safeio``, ``task``) imports this package. The tools themselves may import anything,

@@ -1,8 +1,8 @@
 """How much of a fixed, labelled target-world set each saved MDE of a run admits, iteration by iteration:
 ``python -m benchmarks.admission RUN_DIR ... --sets A.npz B.npz [--out FILE] [overrides]``.
 
-Why: in the quick experiment the test planner finds fewer plans as the MDEs see more data (active_balanced
-0.57 of the test problems after one round, 0.03-0.20 after five). This scores every ``mde_iterNNN.pt`` of the
+Why: the share of test problems the test planner finds plans for depends on which pours the MDE admits, and
+it can fall as an MDE sees more data. This scores every ``mde_iterNNN.pt`` of the
 runs with the test precondition (mu + beta_test sigma < d_max) on transitions whose true deviation is known
 (saved ceiling sets, ``active.ladder --ceiling-data``; labelled with the run config's cached dynamics model):
 the share of good transitions (deviation < d_max) admitted, of bad ones admitted, per skill, and for the

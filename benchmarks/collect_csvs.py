@@ -6,8 +6,8 @@ copies, for each seed, ``model_only.csv`` (the same in every run of that seed) a
 into ``DEST/seedN/METHOD/``. Sources may be run
 directories (holding ``seedN/``), seed directories or single method directories, so that runs made at different
 times (seeds 0-5 in one job, 6-11 in another) land side by side. ``--rename OLD=NEW`` files a method under another
-name (the ``method`` column is rewritten too): for runs made before a method had its own name, e.g. session 32's
-``acquisition=straddle`` runs of active_balanced, which ``configs/methods`` now calls ``active_straddle``.
+name (the ``method`` column is rewritten too): for runs of a method made under another method's name, e.g. runs
+of active_balanced with ``acquisition=straddle``, the method ``configs/methods`` calls ``active_straddle``.
 
     python benchmarks/collect_csvs.py results/quick/csv RUN1 RUN2/seed6/random_plan --rename active_balanced=active_straddle
 

@@ -15,7 +15,7 @@ are the pours a plan needs; then the same for the mean of the seeds' models.
 whose training data differ, e.g. a data-coverage change); its transitions that also occur in a
 variant's training data are dropped (datasets of one seed share their first trajectories).
 The "clean" columns are the pours that moved water and spilled under the problems' 2 % limit: the
-only pours a successful plan can use, a minority of the data (BENCHMARKS.md, session 15).
+only pours a successful plan can use, a minority of the data (BENCHMARKS.md, "Dynamics model accuracy").
 
 Variants are overrides of ``configs/dynamics`` (default: the default config as it is), e.g.
 ``--variant constant=train.lr_schedule=constant,train.max_epochs=1000,train.batch_size=128,train.lr=0.002``.

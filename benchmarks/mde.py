@@ -30,7 +30,7 @@ import torch
 
 import safeio
 
-from mde.model import HeteroscedasticGPMDE
+from mde.model import GPMDE
 
 TARGET_FIT_1200_S = 30.0
 TARGET_PREDICT_10K_S = 0.2
@@ -49,7 +49,7 @@ def synthetic(n: int, d: int = 7, seed: int = 0) -> tuple[torch.Tensor, torch.Te
     return X, y
 
 
-def _time_predict(mde: HeteroscedasticGPMDE, X: torch.Tensor, repeats: int) -> float:
+def _time_predict(mde: GPMDE, X: torch.Tensor, repeats: int) -> float:
     mde.predict(X)  # warm-up
     times = []
     for _ in range(repeats):
@@ -67,7 +67,7 @@ def run(sizes: Sequence[int] = (200, 1200, 3000), batch: int = 10_000, d: int = 
     for n in sizes:
         X, y = synthetic(n, d, seed=n)
         t = time.perf_counter()
-        mde = HeteroscedasticGPMDE(**config).fit(X, y)
+        mde = GPMDE(**config).fit(X, y)
         fit_s = time.perf_counter() - t
         models[n] = mde
         info = mde.fit_info
@@ -130,7 +130,7 @@ def _loadavg() -> float | None:
         return None
 
 
-def _with_predict_dtype(mde: HeteroscedasticGPMDE, dtype: str) -> HeteroscedasticGPMDE:
+def _with_predict_dtype(mde: GPMDE, dtype: str) -> GPMDE:
     """Same fitted model, caches rebuilt in another dtype (no refit)."""
     import copy
 

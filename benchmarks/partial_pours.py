@@ -1,7 +1,7 @@
 """Where the labels of the partial first pours come from: ``python -m benchmarks.partial_pours --sets S/ceiling_train_seed0.npz ...``.
 
 Why: the MDE refuses the pours that every mid-range goal needs (a full cup that pours part of its water into
-the target cup), because their labels in the target world scatter (BENCHMARKS.md, sessions 25-26). This takes
+the target cup), because their labels in the target world scatter (BENCHMARKS.md, "Admission"). This takes
 each such pour of saved ceiling sets (``active.ladder --rungs ceiling --ceiling-seeds ...``) apart by executing
 it again:
 

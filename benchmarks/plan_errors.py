@@ -1,9 +1,9 @@
 """Where plans of the learned model alone go wrong, step by step:
 ``python -m benchmarks.plan_errors [--world source] [--problems 30] [--out FILE] [overrides]``.
 
-Why: the ladder's source rung (plans of the model alone, executed where the model was trained) misses
-the goal by 0.06-0.08 on average while the pour scatter is 0.035 and the model's in-sample error on
-partial pours 0.027: the plans must find the model's errors. This plans the ladder's source-rung
+Why: a plan of the model alone, executed where the model was trained (the ladder's source rung), can
+miss its goal by more than the pour's scatter and the model's average error explain: a planner picks
+the pours the model gets wrong in its favour. This plans the ladder's source-rung
 problems (same seeds), executes the plans, and for every executed step compares the model's
 one-step prediction from the *executed* state (what an MDE label measures) with what happened,
 grouped by skill and by the pour's order in the plan (the first pour of a plan starts from a full
@@ -13,8 +13,9 @@ It also asks how far any model could get with these plans: a plan is accepted as
 predicted final state lies within the goal band, so its predicted fraction sits anywhere in the band.
 If the outcome of a plan scattered as N(prediction, s^2) around a *perfect* prediction (s: the pour
 scatter the ladder's reproducibility rung measures), it would reach the goal with probability
-P(|offset + e| < tol); ``--scatter`` lists the s to evaluate (the default world's 0.035, the lattice
-world's 0.017, the issue's target 0.010), averaged over the found plans' own offsets.
+P(|offset + e| < tol); ``--scatter`` lists the s to evaluate (default 0.035, 0.017 and 0.010: the
+continuous world's sub-cell scatter, the grid-aligned world's, and the reproducibility target), averaged
+over the found plans' own offsets.
 """
 
 from __future__ import annotations

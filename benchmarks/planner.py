@@ -11,7 +11,7 @@ Measures, with the stand-in dynamics model (analytic pouring + an 8-128-128-5 ML
    to show what batching buys;
 4. full candidate sets (N = ``--candidates``) for ``--candidate-problems`` problems.
 
-The MDE is ``mde.HeteroscedasticGPMDE`` when importable and fittable (``--mde auto``, the
+The MDE is ``mde.GPMDE`` when importable and fittable (``--mde auto``, the
 default) and otherwise the :class:`~tests.doubles.standins.StandInGPMDE`; the table says which. The
 deviation labels are synthetic (:func:`~tests.doubles.standins.synthetic_deviation_dataset`), so found
 rates here say nothing about the real task; only the timings are the point.
@@ -46,11 +46,11 @@ def build_mde(kind: str, n_points: int, seed: int, config: PlannerConfig) -> tup
     info: dict[str, Any] = {"points": int(n_points)}
     if kind in ("auto", "real"):
         try:
-            from mde import HeteroscedasticGPMDE  # type: ignore[import-not-found]
+            from mde import GPMDE  # type: ignore[import-not-found]
 
             t = time.perf_counter()
-            mde = HeteroscedasticGPMDE().fit(torch.as_tensor(X), torch.as_tensor(d))
-            info.update(kind="mde.HeteroscedasticGPMDE", fit_s=time.perf_counter() - t)
+            mde = GPMDE().fit(torch.as_tensor(X), torch.as_tensor(d))
+            info.update(kind="mde.GPMDE", fit_s=time.perf_counter() - t)
             return mde, info
         except Exception as e:  # noqa: BLE001 - any failure means "use the stand-in" in auto mode
             if kind == "real":
@@ -231,7 +231,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--problems", type=int, default=30, help="problems planned with one candidate each")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--mde", choices=("auto", "real", "standin"), default="auto",
-                    help="auto: mde.HeteroscedasticGPMDE if it works, else the stand-in GP")
+                    help="auto: mde.GPMDE if it works, else the stand-in GP")
     ap.add_argument("--mde-points", type=int, default=1200)
     ap.add_argument("--beta", type=float, default=2.0)
     ap.add_argument("--d-max", type=float, default=0.07)

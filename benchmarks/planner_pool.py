@@ -8,12 +8,12 @@ what that buys on this machine, with the model and batches the experiment uses:
 * the cached dynamics model of the composed config (``dynamics.load_or_train``; trained on first
   use, ~6 min), wrapped with the known obstacles as ``experiment.known_obstacles`` says;
 * the planner config of the run (``active.loop.build_planner_config``: world skill limits,
-  ``experiment.planner_propagation_budget``, 3000 for experiment=quick);
+  ``experiment.planner_propagation_budget``, 10,000 for experiment=quick);
 * batch ``test``: the run's test problems (``experiment.test_problems``), one plan each with
   beta_test and the run's per-problem seeds; batch ``train``: one refit chunk of training
   problems (``experiment.refit_every``), ``experiment.candidates`` candidates each, beta of
   iteration ``--iteration``;
-* the MDE: none, or ``--mde`` = a saved ``mde.HeteroscedasticGPMDE`` (e.g. ``mde_iterNNN.pt`` of a run).
+* the MDE: none, or ``--mde`` = a saved MDE (``mde.GPMDE`` or ``mde.GroupedMDE``, e.g. ``mde_iterNNN.pt`` of a run).
 
 Both batches run in-process (workers=1) and with ``--workers`` processes, ``--repeat`` times each
 in alternating order (medians reported), after one warm-up plan per process; the worker start-up
@@ -116,9 +116,9 @@ def run(overrides: Sequence[str] = (), workers: int = 2, mde_path: str | None = 
     dyn, planner_cfg, batches, info = experiment_batches(cfg, seed, iteration)
     mde, mde_info = None, "none (every transition admissible)"
     if mde_path is not None:
-        from mde import HeteroscedasticGPMDE
+        from mde import load
 
-        mde = HeteroscedasticGPMDE.load(mde_path)
+        mde = load(mde_path)
         mde_info = f"{mde!r} from {mde_path}"
     result: dict[str, Any] = {
         "machine": {"python": platform.python_version(), "torch": torch.__version__, "cpus": available_cpus(),

@@ -7,9 +7,9 @@ runs the batches :mod:`benchmarks.planner_pool` builds (the run's test plans and
 chunk, in-process) and reports:
 
 * propagations (model rows) per second, with the model called through its numpy path (the
-  planner's default for a CPU model with ``predict_np``) and through torch (the path before session
-  9), and for an ensemble also through its members' numpy paths one at a time (the path before
-  session 11, when the ensemble's weights were not yet stacked), timed alternately in one process,
+  planner's default for a CPU model with ``predict_np``) and through torch (what a model without a
+  numpy path costs), and for an ensemble also through its members' numpy paths one at a time (what
+  stacking the members' weights into one matmul per layer buys), timed alternately in one process,
   medians of ``--repeat``; whether the plans agree;
 * one profiled pass per path (``cProfile``): the share of the planning time spent in the learned
   model, the contact check (``sim.contact.ContactPredictor.first_contact``), the MDE and the
@@ -55,7 +55,7 @@ def _cumulative(stats: pstats.Stats, keys: list[tuple[str, str]]) -> float:
 
 
 class _TorchPath:
-    """The model without its numpy path, so that the planner calls it through torch (the path before session 9)."""
+    """The model without its numpy path, so that the planner calls it through torch."""
 
     def __init__(self, model: Any) -> None:
         self.model = model
@@ -65,7 +65,7 @@ class _TorchPath:
 
 
 class _MembersOneByOne:
-    """An ensemble whose numpy path averages its members' own numpy paths one at a time (before session 11)."""
+    """An ensemble whose numpy path averages its members' own numpy paths one at a time (no stacked weights)."""
 
     def __init__(self, ensemble: Any) -> None:
         self.ensemble = ensemble

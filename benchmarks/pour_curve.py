@@ -1,8 +1,8 @@
 """A full cup's pour outcome against the tilt angle, simulated and as the learned model predicts it:
 ``python -m benchmarks.pour_curve [--positions X,Y ...] [--holds 0 0.5 1] [--out FILE] [overrides]``.
 
-Why: plans of the model alone miss the goal by about 0.08 in the world the model was trained in
-(the ladder's source rung), much more than the scatter of a pour (0.013-0.035). This shows the map
+Why: plans of the model alone can miss the goal in the world the model was trained in (the ladder's
+source rung) by more than a pour's scatter. This shows the map
 the model has to learn where the planner uses it: for each start position and hold time, one pour
 per angle on a grid over the steep part of the curve (source world, one batched simulation), the
 fraction that ends in the target cup and the spill, next to the model's one-step prediction from

@@ -20,7 +20,7 @@ from sim.world import WorldConfig
 
 def bench_batch(cfg: WorldConfig, n: int, n_actions: int, seed: int = 0, arch: str | None = None,
                 compare: bool = True) -> dict:
-    """Execute n random trajectories; with ``compare`` also the old path (every environment simulated
+    """Execute n random trajectories; with ``compare`` also the unfrozen path (every environment simulated
     to the end of the longest trajectory) on the same batch, in the same process, checking that the
     observations agree bit for bit, and the speed-up."""
     rng = np.random.default_rng(seed)
@@ -125,7 +125,7 @@ def main(argv=None) -> None:
     ap.add_argument("--out", default="bench_execute.json")
     ap.add_argument("--resolution", action="store_true", help="also run the resolution check")
     ap.add_argument("--skip-batch", action="store_true", help="only the resolution check")
-    ap.add_argument("--no-compare", action="store_true", help="skip the old-path run of the batch")
+    ap.add_argument("--no-compare", action="store_true", help="skip the unfrozen run of the batch")
     ap.add_argument("--arch", default=None, help="cpu | gpu | auto (default: the world config's)")
     ap.add_argument("--spread", action="store_true", help="also measure the outcome spread of one pour")
     ap.add_argument("--spread-dx", type=float, nargs="+", default=[0.01, 0.005])
@@ -139,7 +139,7 @@ def main(argv=None) -> None:
               f"{row['env_ticks_run']} of {row['env_ticks']} environment-ticks run, finished environments frozen); "
               f"{row['trajectories_per_second']:.2f} trajectories/s, warm-up (compile) {row['warm_up_seconds']:.1f} s")
         if "speedup" in row:
-            print(f"  every environment to the end (old path): {row['all_envs_to_the_end']['wall_seconds']:.1f} s; "
+            print(f"  every environment to the end (unfrozen): {row['all_envs_to_the_end']['wall_seconds']:.1f} s; "
                   f"speed-up {row['speedup']:.2f}x; observations identical: {row['identical']}")
         for k, v in row["shares"].items():
             print(f"  {k:14s} {100 * v:5.1f} %")

@@ -3,9 +3,9 @@ worker processes, timed in one run:
 
     python -m benchmarks.sim_schedules [--n 512] [--actions 6] [--workers N] [--rounds 2] [--out FILE]
 
-Why: on a 16-core GPU box the schedules of 2048 random trajectories took 46 % of their execution on
-16 threads, about what one thread takes (BENCHMARKS.md, "Session 20: an H200"); large batches now
-compute them in spawned processes (``sim.execute.SCHEDULE_PROCESS_MIN_BATCH``). This measures the
+Why: on a 16-core GPU box the schedules of 2048 random trajectories take 46 % of their execution on
+16 threads, about what one thread takes (BENCHMARKS.md, "GPU"); large batches compute them in spawned
+processes (``sim.execute.SCHEDULE_PROCESS_MIN_BATCH``). This measures the
 three ways on the same batch (the execute benchmark's generator: random target-world trajectories),
 checks that they give the same schedules, and reports trajectories/s and the ratios. The process
 pool's start-up (spawn, imports) is timed apart: the executor keeps its pool for later batches.

@@ -2,7 +2,7 @@
 
     python -m benchmarks.sim_solver [--out bench_sim.json] [--envs 1 8 32] [--seconds 0.3] [--scene pouring|world]
 
-Scene ``pouring`` (the first one, kept for comparison): a pouring-like world (a cup of water carried over
+Scene ``pouring`` (the lighter one): a pouring-like world (a cup of water carried over
 a target cup on the floor, i.e. moving colliders, SDF queries and projection all active; ppc 4, the
 solver's plain defaults). Scene ``world``: the default world's target-world scene (its water model, full
 cup, target cup and plant), the cup moving and tilting. Reference: Taichi's mpm88 water written out here

@@ -8,7 +8,7 @@ when the scene holds at most ``sim.mpm._SPLIT_ENV_PARTICLES`` particles and spli
 (``_substep_split``) above. Three paths, alternating round by round (each round continues the same
 simulation in each): ``one_task`` and ``split`` (both with the factored 3D transfers of
 ``sim.mpm._FACTORED_TRANSFERS``; they must give the same bits, which is checked), and ``direct``, the one-task
-path with the direct transfers that 3D used before session 45 (the same equations rounded otherwise: the
+path with the direct transfers (the form 2D keeps; the same equations rounded otherwise: the
 reference for the factored form's speed; its state drifts from the others' as any rounding change does in a
 free-surface flow, reported as the largest position difference). Prints particle-substeps/s and the ratios
 (best round against best round, and per round).
