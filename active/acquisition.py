@@ -24,7 +24,7 @@ from botorch.utils.transforms import t_batch_mode_transform
 from torch import Tensor
 
 
-def _check_gamma(gamma: float) -> float:
+def check_gamma(gamma: float) -> float:
     if not (0.0 < gamma <= 1.0):
         raise ValueError(f"acquisition.gamma = {gamma}: allowed (0, 1]")
     return float(gamma)
@@ -38,7 +38,7 @@ class TrajectoryAcquisition(AcquisitionFunction):
 
     def __init__(self, model: Model, gamma: float = 1.0, observation_noise: bool = True) -> None:
         super().__init__(model=model)
-        self.gamma = _check_gamma(gamma)
+        self.gamma = check_gamma(gamma)
         self.observation_noise = observation_noise
 
     def step_score(self, mean: Tensor, std: Tensor) -> Tensor:  # pragma: no cover - abstract
@@ -74,14 +74,7 @@ class DiscountedMaxUCB(TrajectoryAcquisition):
 
     minimise = True
 
-    def __init__(self, model: Model, c: float = 0.1, gamma: float = 1.0, observation_noise: bool = True,
-                 **kwargs) -> None:
-        if "form" in kwargs:  # the former string switch (acquisition.form=eq1|lcb)
-            raise ValueError(f"acquisition.form = {kwargs['form']!r} was removed: the paper's Eq. 1 is "
-                             f"acquisition=alpha (active.acquisition.DiscountedMaxUCB, the default), its LCB "
-                             f"reading acquisition=lcb (active.acquisition.DiscountedMaxLCB)")
-        if kwargs:
-            raise TypeError(f"{type(self).__name__}: unexpected keyword argument(s) {sorted(kwargs)}")
+    def __init__(self, model: Model, c: float = 0.1, gamma: float = 1.0, observation_noise: bool = True) -> None:
         super().__init__(model, gamma, observation_noise)
         self.c = float(c)
 

@@ -26,15 +26,15 @@ if TYPE_CHECKING:  # the report reads these files without importing the planner 
 log = logging.getLogger(__name__)
 
 FILE = "model_only.csv"
-FIELDS = ["seed", "problem", "goal", "found", "goal_reached", "category", "final_spill", "digest"]  # loop.OUTCOME_FIELDS
+FIELDS = ["seed", "problem", "goal", "found", "goal_reached", "category", "final_spill", "digest"]  # needs.OUTCOME_FIELDS
 
 
-def load(path: Path, digests: frozenset[str], n: int) -> list[dict] | None:
-    """The rows of ``path`` if a config with one of ``digests`` made all ``n`` of them, else None."""
+def load(path: Path, digest: str, n: int) -> list[dict] | None:
+    """The rows of ``path`` if the config with ``digest`` made all ``n`` of them, else None."""
     if not path.exists():
         return None
     rows = read_csv(path)
-    if len(rows) == n and rows and all(r.get("digest") in digests for r in rows):
+    if len(rows) == n and rows and all(r.get("digest") == digest for r in rows):
         return rows
     log.warning("%s was made by another configuration or is incomplete; rebuilding it", path)
     return None
@@ -44,9 +44,10 @@ def measure(pool: "PlanPool", executor: "PouringExecutor", problems: Mapping[int
             d_max: float) -> dict[int, list[dict]]:
     """Plan every seed's test problems with the model alone (one planning batch) and execute the plans
     found (one target-world simulation); returns seed -> one row per problem (without the digest)."""
-    from planner.pool import PlanRequest
+    from planner.pool import PlanRequest  # the report imports this module without the planner
 
-    from .loop import SimNeed, derive_seed, execute_needs, problem_outcomes  # the run's seeding, batching, rows
+    from .needs import SimNeed, execute_needs, problem_outcomes
+    from .seeds import derive_seed
 
     seeds = list(problems)
     groups = [([PlanRequest("plan", p.start, p.goal, d_max=d_max, seed=derive_seed(s, "model-only-plan", k))

@@ -36,9 +36,26 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
-import numpy as np
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch and Taichi start their thread pools (active.run)
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from hydra.utils import instantiate  # noqa: E402
+
+import safeio  # noqa: E402
+from mde.calibration import cross_validate  # noqa: E402
+from planner import ActionSampler, features  # noqa: E402
+from planner.pool import PlanPool, PlanRequest  # noqa: E402
+from sim.execute import CATEGORIES, PouringExecutor  # noqa: E402
+from sim.problems import sample_problems  # noqa: E402
+from sim.skills import MOVE, POUR, move, pour  # noqa: E402
+from sim.world import WorldConfig  # noqa: E402
+
+from .experiment import ExperimentConfig  # noqa: E402
+from .labels import label_transitions, stack_steps  # noqa: E402
+from .planner_setup import build_planner_config, planner_workers, planning_dynamics  # noqa: E402
+from .run import compose_config  # noqa: E402
+from .seeds import derive_seed  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -65,9 +82,6 @@ def reproducibility(world, executor, thetas: Sequence[float], hold: float, n: in
 
     (c) is the scatter a model of (x, y, ...) sees between neighbouring training pours: the walls and the
     pouring lip sit on the grid differently at each offset (BENCHMARKS.md, session 6)."""
-    from sim.problems import sample_problems
-    from sim.skills import move, pour
-
     starts = np.array([p.start[:3] for p in sample_problems(world, n, seed, world="source")])
     offsets = subcell_offsets(n, float(world.sim["dx"]))
     start = np.array([[0.42, 0.20, 0.0]] * n)
@@ -92,10 +106,6 @@ def reproducibility(world, executor, thetas: Sequence[float], hold: float, n: in
 def plan_all(pool, mde, problems, exp, seed: int, purpose: str, mde_beta: float | None = None) -> list:
     """One plan per problem (None where none is found), seeded per (seed, purpose, index), on the
     :class:`planner.PlanPool` (``planner.workers`` processes; same plans as in-process)."""
-    from planner.pool import PlanRequest
-
-    from .loop import derive_seed
-
     beta = exp.beta_test if mde_beta is None else mde_beta
     reqs = [PlanRequest("plan", prob.start, prob.goal, beta=beta, d_max=exp.d_max,
                         seed=derive_seed(seed, "ladder", purpose, k)) for k, prob in enumerate(problems)]
@@ -121,10 +131,6 @@ def execute_plans(executor, world_name: str, problems, plans) -> list:
 
 def model_only(world, world_name: str, pool, exp, executor, n: int, seed: int) -> dict:
     """Plans from the model alone (no MDE) for n problems, executed in ``world_name``."""
-    from sim.problems import sample_problems
-
-    from .loop import derive_seed
-
     problems = sample_problems(world, n, derive_seed(seed, "ladder-problems", world_name), world=world_name)
     t0 = time.perf_counter()
     plans = plan_all(pool, None, problems, exp, seed, f"model-only-{world_name}")
@@ -152,8 +158,6 @@ def per_problem(problems, res: list) -> list[dict]:
 def outcomes(world, done: list) -> dict:
     """How the executed plans ended: trajectory categories, mean |final target fraction - goal|, and how
     many spilled over the world's limit (what a found-but-failed plan did)."""
-    from sim.execute import CATEGORIES
-
     errors = [abs(r.states[-1, 4] - r.goal) for r in done]
     return {"categories": {c: sum(r.category == c for r in done) for c in CATEGORIES},
             "mean_abs_goal_error": float(np.mean(errors)) if errors else None,
@@ -166,10 +170,6 @@ CEILING_BATCH = 32
 
 def ceiling_train_problems(world, n_train: int, seed: int) -> list:
     """The problems (start, plant jitter, goal) of ladder seed ``seed``'s ceiling training set, in order."""
-    from sim.problems import sample_problems
-
-    from .loop import derive_seed
-
     return sample_problems(world, n_train, derive_seed(seed, "ladder-ceiling-train"), world="target")
 
 
@@ -177,10 +177,6 @@ def ceiling_dataset(world, pool, exp, executor, n_train: int, seed: int, batch: 
     """n_train target-world trajectories (half random plans of the model alone, half random action
     sequences), as arrays: s, a, s_next (transitions of stable trajectories), trajectory (each
     transition's trajectory index) and category (one per trajectory)."""
-    from planner import ActionSampler
-
-    from .loop import _stack_steps, derive_seed
-
     n_plans = n_train // 2
     train_probs = ceiling_train_problems(world, n_train, seed)
     plans = plan_all(pool, None, train_probs[:n_plans], exp, seed, "ceiling-train")
@@ -193,7 +189,7 @@ def ceiling_dataset(world, pool, exp, executor, n_train: int, seed: int, batch: 
         chunk = train_probs[i:i + batch]
         results += executor.run("target", np.array([p.start[:3] for p in chunk]), acts[i:i + batch],
                                 plant_jitter=np.array([p.plant_jitter for p in chunk]), goals=[p.goal for p in chunk])
-    s, a, s2 = _stack_steps(results)
+    s, a, s2 = stack_steps(results)
     kept = [(i, r) for i, r in enumerate(results) if not r.unstable]  # as _stack_steps
     return {"s": s, "a": a, "s_next": s2, "trajectory": np.array([i for i, r in kept for _ in r.steps], dtype=int),
             "category": np.array([r.category for r in results]),
@@ -237,13 +233,6 @@ def ceiling(world, dyn, pool, exp, executor, make_mde, n_train: int, n: int, see
     MDE variants can be studied offline; with ``reuse`` they are read from there instead of being
     simulated again (labels are always recomputed with ``dyn``), all of them or, with ``n_train`` > 0,
     :func:`ceiling_subset` of them."""
-    import torch
-
-    from planner import features
-    from sim.skills import MOVE, POUR
-
-    from .loop import label_transitions
-
     if reuse:
         if data_path is None or not Path(data_path).exists():
             raise FileNotFoundError(f"--ceiling-data {data_path}: no such file")
@@ -257,16 +246,12 @@ def ceiling(world, dyn, pool, exp, executor, make_mde, n_train: int, n: int, see
     s, a = data["s"], data["a"]
     y = label_transitions(dyn, s, a, data["s_next"], world.distance_weights)
     if data_path is not None and not reuse:
-        import safeio
-
         safeio.atomic_write(data_path, lambda f: np.savez(f, **data))
     t0 = time.perf_counter()
     mde = make_mde().fit(torch.as_tensor(features(s, a)), torch.as_tensor(y))
     t_fit = time.perf_counter() - t0
     # why plans are (not) found: how much of the data the test precondition admits, per skill, in
     # sample and held out by trajectory (the second is what new problems meet)
-    from mde.calibration import cross_validate
-
     X = torch.as_tensor(features(s, a))
     mu, sd = (v.double().numpy() for v in mde.predict(X)) if len(y) else (np.zeros(0), np.zeros(0))
     t0 = time.perf_counter()
@@ -294,10 +279,6 @@ def ceiling_test(world, pool, mde, exp, executor, n: int, seed: int) -> dict:
     """Plan ceiling seed ``seed``'s n target-world test problems with ``mde`` under the test precondition and
     execute the plans found: found, success, outcomes, planning time and per-problem records. Any MDE can be put
     on the same problems this way (a run's own, one fitted on pooled data)."""
-    from sim.problems import sample_problems
-
-    from .loop import derive_seed
-
     test = sample_problems(world, n, derive_seed(seed, "ladder-ceiling-test"), world="target")
     t0 = time.perf_counter()
     plans = plan_all(pool, mde, test, exp, seed, "ceiling-test")
@@ -334,17 +315,6 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
     problems (saved to ``DIR/ceiling_train_seed<s>.npz``, or read from the matching ``ceiling_data``
     file), and reports the mean, the range and each set's record (``per_seed``): one training set moves
     the ceiling from 0.00 to 0.60 (BENCHMARKS.md, session 15). None: the config's seed only."""
-    from hydra.utils import instantiate
-    from sim.execute import PouringExecutor
-    from sim.world import WorldConfig
-
-    import safeio
-
-    from .experiment import ExperimentConfig
-    from planner.pool import PlanPool
-
-    from .loop import build_planner_config, planner_workers, planning_dynamics
-
     unknown = sorted(set(rungs) - set(RUNGS))
     if unknown:
         raise ValueError(f"--rungs {unknown}: allowed any of {list(RUNGS)}")
@@ -540,10 +510,6 @@ def main(argv: Sequence[str] | None = None) -> None:
     except ValueError as err:
         raise SystemExit(str(err)) from None
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    from sim.world import WorldConfig
-
-    from .run import compose_config
-
     cfg = compose_config(args.overrides)
     on_contact = WorldConfig.from_mapping(cfg["world"]).plant_on_contact
     for f in args.ceiling_data or []:

@@ -23,7 +23,8 @@ from tqdm.auto import tqdm
 from planner.pool import PlanPool
 from sim.execute import PouringExecutor
 
-from .loop import MethodRun, PlanNeed, SimNeed, execute_needs
+from .loop import MethodRun
+from .needs import PlanNeed, SimNeed, execute_needs
 
 log = logging.getLogger(__name__)
 

@@ -17,23 +17,81 @@ into it is refused; a killed one's lock is taken over).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import time
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
-
-import configs
+from typing import Any, Callable, Mapping
 
 # OpenMP threads that spin while waiting stall each other (and the simulator's threads) on small
 # machines shared with other jobs; passive waiting costs nothing measurable on an idle machine.
+# Set before torch and Taichi are imported (below), which read it when their thread pools start.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import hydra  # noqa: E402
+import torch  # noqa: E402
+from hydra import compose, initialize_config_dir  # noqa: E402
+from hydra.core.hydra_config import HydraConfig  # noqa: E402
+from hydra.utils import instantiate  # noqa: E402
+from omegaconf import DictConfig, OmegaConf  # noqa: E402
+
+import configs  # noqa: E402
+from planner import ActionSampler  # noqa: E402
+from planner.pool import PlanPool  # noqa: E402
+from sim.execute import PouringExecutor  # noqa: E402
+from sim.world import WorldConfig  # noqa: E402
+from task.problems import sample_problems  # noqa: E402
+
+from . import baseline  # noqa: E402
+from .acquisition_factory import acquisition_factory, check_method_acquisition  # noqa: E402
+from .calibration import load_calibration, make_calibration_set, save_calibration  # noqa: E402
+from .experiment import ExperimentConfig  # noqa: E402
+from .identity import config_digest  # noqa: E402
+from .io import write_json  # noqa: E402
+from .lockstep import run_lockstep  # noqa: E402
+from .loop import Context, MethodRun  # noqa: E402
+from .methods import build_method  # noqa: E402
+from .planner_setup import build_planner_config, planner_workers, planning_dynamics  # noqa: E402
+from .preflight import check_dynamics, check_geometry, check_seed, check_writable  # noqa: E402
+from .report import report  # noqa: E402
+from .rundir import check_run_directory, clean_leftovers  # noqa: E402
+from .runlock import RunLock  # noqa: E402
+from .seeds import derive_seed  # noqa: E402
+from .tracking import Tracker  # noqa: E402
 
 log = logging.getLogger("active.run")
 
 
 RUNNERS = ("sequential", "lockstep")
+WANDB_MODES = ("offline", "online", "disabled")
+
+
+@dataclass
+class RunSpec:
+    """Everything a run is set to, validated before any compute (:func:`prepare_run`)."""
+
+    cfg: dict
+    runner: str
+    seeds: list[int]
+    single: bool  # one seed, written into the run directory itself (not seed<s>/)
+    seed_dirs: dict[int, Path]
+    exp: Any
+    world: Any
+    planner_cfg: Any
+    workers: int
+    make_acq: Callable
+    make_mde: Callable
+    mde_module: str
+    wandb: dict
+    test_problems: dict
+    progress: bool
+
+    def seed_cfg(self, s: int) -> dict:
+        """The configuration of seed ``s``'s directory (that of a single-seed run with ``seed=s``)."""
+        return {**self.cfg, "seed": s}
 
 
 def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
@@ -51,124 +109,130 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     writer per run directory) and what it holds is checked against its config; ``config.json`` is
     written only once the directory is accepted.
     """
-    import contextlib
-
-    import torch
-    from hydra.utils import instantiate
-
-    from planner import ActionSampler
-    from planner.pool import PlanPool
-    from sim.execute import PouringExecutor
-    from task.problems import sample_problems
-
-    from . import baseline
-    from .io import write_json
-    from .lockstep import run_lockstep
-    from .loop import Context, MethodRun, acquisition_factory, check_method_acquisition, config_digest, derive_seed
-    from .loop import make_calibration_set, planning_dynamics
-    from .methods import build_method
-    from .preflight import check_dynamics, check_writable
-    from .report import report
-    from .rundir import check_run_directory, clean_leftovers, load_calibration, save_calibration
-    from .runlock import RunLock
-    from .tracking import Tracker
-
     t0 = time.perf_counter()
-    cfg = dict(cfg)
     out = Path(out_dir)
-    # ---- validate everything before any compute (and before touching the output directory)
+    spec = prepare_run(cfg, out)
+    with contextlib.ExitStack() as stack:
+        calibrations = accept_directories(spec, stack)
+        torch.manual_seed(spec.seeds[0])
+        log.info("dynamics model: loading from cache or training (source world only)")
+        dyn = planning_dynamics(spec.cfg["dynamics"], spec.cfg["world"], spec.world, spec.exp, spec.progress)
+        executor = PouringExecutor(spec.world)
+        for s in spec.seeds:
+            if calibrations[s] is None:
+                calibrations[s] = save_calibration(spec.seed_dirs[s] / "calibration_set.pt", make_calibration_set(
+                    spec.world, dyn, executor, ActionSampler(spec.planner_cfg), spec.exp.calibration_trajectories,
+                    spec.exp.random_actions_length, s), spec.seed_cfg(s))
+        # planner worker processes (spawned on first use, shared by all methods; results do not depend on them)
+        with PlanPool(dyn, spec.planner_cfg, spec.workers, preload=[spec.mde_module]) as pool:
+            measure_model_alone(spec, pool, executor)
+            made = run_methods(spec, _contexts(spec, dyn, executor, calibrations, pool), pool, executor)
+        executor.close()
+    if not spec.single:  # every seed's runs together (one seed: its report is the run's)
+        made = report([spec.seed_dirs[s] for s in spec.seeds], out / "report")
+    print(made["table"])
+    print(f"results and figures in {out} ({time.perf_counter() - t0:.0f} s)")
+    return made
+
+
+def prepare_run(cfg: Mapping[str, Any], out: Path) -> RunSpec:
+    """Validate everything before any compute and before touching the output directory."""
     runner, seeds, single, cfg = run_layout(cfg)
     seed_dirs = {s: out for s in seeds} if single else {s: out / f"seed{s}" for s in seeds}
-    progress = bool(cfg.get("progress", True))
     exp, world, planner_cfg, workers = run_settings(cfg)
     make_acq = acquisition_factory(cfg["acquisition"], exp)
     for m in exp.methods:  # the methods: node; every spec instantiates, and fits the acquisition, before compute
         check_method_acquisition(m, build_method(m, cfg["methods"]), make_acq)
     mde_cfg = dict(cfg["mde"])
 
-    def make_mde():
+    def make_mde() -> Any:
         return instantiate(mde_cfg, _convert_="all")
 
     mde_module = type(make_mde()).__module__  # validates the MDE config; planner workers import this module up front
     wandb_cfg = dict(cfg.get("wandb", {}))
-    if wandb_cfg.get("mode", "offline") not in ("offline", "online", "disabled"):
-        raise ValueError(f"wandb.mode = {wandb_cfg.get('mode')!r}: allowed one of ('offline', 'online', 'disabled')")
+    if wandb_cfg.get("mode", "offline") not in WANDB_MODES:
+        raise ValueError(f"wandb.mode = {wandb_cfg.get('mode')!r}: allowed one of {WANDB_MODES}")
     check_dynamics(cfg["dynamics"], cfg["world"])  # its config; the cache is writable if the model must be trained
     test_problems = {s: sample_problems(world, exp.test_problems, derive_seed(s, "test"), world="target") for s in seeds}
     check_writable(list(dict.fromkeys([out, *seed_dirs.values()])))
+    return RunSpec(cfg=cfg, runner=runner, seeds=seeds, single=single, seed_dirs=seed_dirs, exp=exp, world=world,
+                   planner_cfg=planner_cfg, workers=workers, make_acq=make_acq, make_mde=make_mde,
+                   mde_module=mde_module, wandb=wandb_cfg, test_problems=test_problems,
+                   progress=bool(cfg.get("progress", True)))
 
-    with contextlib.ExitStack() as stack:
-        seed_cfgs, calibrations, cal_paths, accepted = {}, {}, {}, {}
-        for s, d in seed_dirs.items():
-            stack.enter_context(RunLock(d))  # one writer per run directory; released however this block ends
-            seed_cfgs[s] = {**cfg, "seed": s}
-            check_writable([d / m for m in exp.methods] + [d / "report"])
-            clean_leftovers(d)
-            accepted[s], resumable = check_run_directory(d, seed_cfgs[s])
-            cal_paths[s] = d / "calibration_set.pt"
-            calibrations[s] = load_calibration(cal_paths[s], seed_cfgs[s], accepted[s], trust_untagged=resumable)
-        for s, d in seed_dirs.items():  # only now: a refused run leaves every directory's record alone
-            write_json(d / "config.json", seed_cfgs[s])
-        torch.manual_seed(seeds[0])
 
-        # ---- shared pieces: dynamics model (cached by config hash), simulator, problems, held-out data
-        log.info("dynamics model: loading from cache or training (source world only)")
-        dyn = planning_dynamics(cfg["dynamics"], cfg["world"], world, exp, progress)
-        executor = PouringExecutor(world)
-        for s in seeds:
-            if calibrations[s] is None:
-                calibrations[s] = save_calibration(cal_paths[s], make_calibration_set(
-                    world, dyn, executor, ActionSampler(planner_cfg), exp.calibration_trajectories,
-                    exp.random_actions_length, s), seed_cfgs[s])
-        # planner worker processes (spawned on first use, shared by all methods; results do not depend on them)
-        with PlanPool(dyn, planner_cfg, workers, preload=[mde_module]) as pool:
-            # the model alone on each seed's test problems (once per seed): the line every method has to beat
-            refs = {s: baseline.load(seed_dirs[s] / baseline.FILE, accepted[s], exp.test_problems) for s in seeds}
-            missing = {s: test_problems[s] for s in seeds if refs[s] is None}
-            if missing:
-                log.info("the model alone (no MDE) on the test problems of seed(s) %s", sorted(missing))
-                pool.start()
-                tb = time.perf_counter()
-                for s, rows in baseline.measure(pool, executor, missing, exp.d_max).items():
-                    baseline.save(seed_dirs[s] / baseline.FILE, rows, config_digest(seed_cfgs[s]))
-                    success, found = baseline.rates(rows)
-                    log.info("seed %d, the model alone: plans found %.2f, test success %.2f", s, found, success)
-                log.info("the model alone: %.0f s", time.perf_counter() - tb)
+def accept_directories(spec: RunSpec, stack: contextlib.ExitStack) -> dict[int, dict | None]:
+    """Lock every seed's directory (released when ``stack`` closes), check what it holds against its
+    configuration, and only then record the configuration; returns each seed's reusable calibration set."""
+    calibrations = {}
+    for s, d in spec.seed_dirs.items():
+        stack.enter_context(RunLock(d))  # one writer per run directory; released however the run ends
+        check_writable([d / m for m in spec.exp.methods] + [d / "report"])
+        clean_leftovers(d)
+        check_run_directory(d, spec.seed_cfg(s))
+        calibrations[s] = load_calibration(d / "calibration_set.pt", spec.seed_cfg(s))
+    for s, d in spec.seed_dirs.items():  # only now: a refused run leaves every directory's record alone
+        write_json(d / "config.json", spec.seed_cfg(s))
+    return calibrations
 
-            def start(s: int, method: str) -> MethodRun:
-                ctx = Context(cfg=seed_cfgs[s], exp=exp, world=world, planner_cfg=planner_cfg, dynamics=dyn,
-                              executor=executor, test_problems=test_problems[s], calibration=calibrations[s],
-                              out=seed_dirs[s], seed=s, progress=progress, accepted_digests=accepted[s], pool=pool)
-                tracker = Tracker(wandb_cfg.get("mode", "offline"), wandb_cfg.get("project", "active-mde"),
-                                  f"{exp.name}-{method}-seed{s}", seed_cfgs[s], seed_dirs[s],
-                                  entity=wandb_cfg.get("entity"), group=f"{exp.name}-seed{s}")
-                return MethodRun(ctx, method, make_mde, make_acq, tracker)
 
-            def report_seed(s: int, runs: list[MethodRun]) -> dict:
-                d = seed_dirs[s]
-                made = report([d], d / "report")  # figures for W&B and partial runs
-                for r in runs:
-                    r.tracker.log_images({"learning_curves": d / "report" / "learning_curves.png",
-                                          "trajectory_types": d / "report" / "trajectory_types.png"})
-                    r.tracker.finish()
-                return made
+def measure_model_alone(spec: RunSpec, pool: PlanPool, executor: PouringExecutor) -> None:
+    """The model alone on each seed's test problems (once per seed): the line every method has to beat."""
+    digests = {s: config_digest(spec.seed_cfg(s)) for s in spec.seeds}
+    missing = {s: spec.test_problems[s] for s in spec.seeds
+               if baseline.load(spec.seed_dirs[s] / baseline.FILE, digests[s], spec.exp.test_problems) is None}
+    if not missing:
+        return
+    log.info("the model alone (no MDE) on the test problems of seed(s) %s", sorted(missing))
+    pool.start()
+    tb = time.perf_counter()
+    for s, rows in baseline.measure(pool, executor, missing, spec.exp.d_max).items():
+        baseline.save(spec.seed_dirs[s] / baseline.FILE, rows, digests[s])
+        success, found = baseline.rates(rows)
+        log.info("seed %d, the model alone: plans found %.2f, test success %.2f", s, found, success)
+    log.info("the model alone: %.0f s", time.perf_counter() - tb)
 
-            if runner == "lockstep":
-                runs = {s: [start(s, m) for m in exp.methods] for s in seeds}
-                run_lockstep([r for s in seeds for r in runs[s]], pool, executor, progress=progress)
-                for s in seeds:
-                    made = report_seed(s, runs[s])
-            else:
-                for s in seeds:
-                    for method in exp.methods:
-                        r = start(s, method)
-                        r.run()
-                        made = report_seed(s, [r])  # after every method
-        executor.close()
-    if not single:  # every seed's runs together (one seed: its report is the run's)
-        made = report([seed_dirs[s] for s in seeds], out / "report")
-    print(made["table"])
-    print(f"results and figures in {out} ({time.perf_counter() - t0:.0f} s)")
+
+def _contexts(spec: RunSpec, dyn: Any, executor: PouringExecutor, calibrations: dict, pool: PlanPool) -> dict:
+    """Each seed's :class:`Context` (what every method of the seed shares)."""
+    return {s: Context(cfg=spec.seed_cfg(s), exp=spec.exp, world=spec.world, planner_cfg=spec.planner_cfg,
+                       dynamics=dyn, executor=executor, test_problems=spec.test_problems[s],
+                       calibration=calibrations[s], out=spec.seed_dirs[s], seed=s, progress=spec.progress, pool=pool)
+            for s in spec.seeds}
+
+
+def run_methods(spec: RunSpec, contexts: dict[int, Context], pool: PlanPool, executor: PouringExecutor) -> dict:
+    """Every (method, seed) to ``experiment.iterations``, in lockstep or one after another, each seed's report
+    drawn as its runs finish; returns the last report made."""
+    exp = spec.exp
+
+    def start(s: int, method: str) -> MethodRun:
+        tracker = Tracker(spec.wandb.get("mode", "offline"), spec.wandb.get("project", "active-mde"),
+                          f"{exp.name}-{method}-seed{s}", spec.seed_cfg(s), spec.seed_dirs[s],
+                          entity=spec.wandb.get("entity"), group=f"{exp.name}-seed{s}")
+        return MethodRun(contexts[s], method, spec.make_mde, spec.make_acq, tracker)
+
+    def report_seed(s: int, runs: list[MethodRun]) -> dict:
+        d = spec.seed_dirs[s]
+        made = report([d], d / "report")  # figures for W&B and partial runs
+        for r in runs:
+            r.tracker.log_images({"learning_curves": d / "report" / "learning_curves.png",
+                                  "trajectory_types": d / "report" / "trajectory_types.png"})
+            r.tracker.finish()
+        return made
+
+    made: dict = {}
+    if spec.runner == "lockstep":
+        runs = {s: [start(s, m) for m in exp.methods] for s in spec.seeds}
+        run_lockstep([r for s in spec.seeds for r in runs[s]], pool, executor, progress=spec.progress)
+        for s in spec.seeds:
+            made = report_seed(s, runs[s])
+    else:
+        for s in spec.seeds:
+            for method in exp.methods:
+                r = start(s, method)
+                r.run()
+                made = report_seed(s, [r])  # after every method
     return made
 
 
@@ -176,8 +240,6 @@ def run_layout(cfg: Mapping[str, Any]) -> tuple[str, list[int], bool, dict]:
     """How a run is carried out, validated: ``runner``, its seeds, whether it writes into its directory
     itself (``seeds`` null: the one ``seed``) or into ``seed<s>`` folders; and ``cfg`` without
     ``runner`` and ``seeds`` (each seed directory's ``config.json`` is that of a single-seed run)."""
-    from .preflight import check_seed
-
     c = dict(cfg)
     runner = c.pop("runner", "sequential")
     if runner not in RUNNERS:
@@ -197,12 +259,6 @@ def run_settings(cfg: Mapping[str, Any]) -> tuple[Any, Any, Any, int]:
     """What a run of ``cfg`` is set to, validated before any compute: its ``ExperimentConfig``, its
     ``WorldConfig`` (checked against the geometry), the ``PlannerConfig`` every planning call gets and
     the number of planner processes. Errors name the key and what is allowed."""
-    from sim.world import WorldConfig
-
-    from .experiment import ExperimentConfig
-    from .loop import build_planner_config, planner_workers
-    from .preflight import check_geometry
-
     exp = ExperimentConfig.from_mapping(cfg["experiment"], method=str(cfg.get("method", "all")),
                                        registry=cfg.get("methods"))
     world = WorldConfig.from_mapping(cfg["world"])
@@ -222,17 +278,12 @@ def seed_dir(seed: Any, seeds: Any) -> str:
 
 def register_resolvers() -> None:
     """The config's own interpolations (idempotent)."""
-    from omegaconf import OmegaConf
-
     if not OmegaConf.has_resolver("seed_dir"):
         OmegaConf.register_new_resolver("seed_dir", seed_dir)
 
 
 def compose_config(overrides: list[str] | None = None) -> dict:
     """The resolved config of ``python -m active.run <overrides>`` as a plain dict (no Hydra run dir)."""
-    from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
-
     register_resolvers()
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
         cfg = compose(config_name="config", overrides=list(overrides or []))
@@ -242,10 +293,6 @@ def compose_config(overrides: list[str] | None = None) -> dict:
 
 
 def _hydra_main() -> None:
-    import hydra
-    from hydra.core.hydra_config import HydraConfig
-    from omegaconf import DictConfig, OmegaConf
-
     register_resolvers()
 
     @hydra.main(config_path=str(CONFIG_DIR), config_name="config", version_base="1.3")

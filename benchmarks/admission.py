@@ -46,7 +46,8 @@ def labelled_set(paths: Sequence[Path], overrides: Sequence[str], trajectories: 
 
     from active.experiment import ExperimentConfig
     from active.ladder import ceiling_subset
-    from active.loop import label_transitions, planning_dynamics
+    from active.labels import label_transitions
+    from active.planner_setup import planning_dynamics
     from active.run import compose_config
     from planner import features
     from sim.skills import POUR

@@ -114,7 +114,7 @@ def take_apart(sets: Sequence[Path], set_seeds: Sequence[int] | None, overrides:
     import torch
 
     from active.experiment import ExperimentConfig
-    from active.loop import planning_dynamics
+    from active.planner_setup import planning_dynamics
     from active.run import compose_config
     from sim.execute import PouringExecutor
     from sim.world import WorldConfig

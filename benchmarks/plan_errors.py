@@ -55,7 +55,8 @@ def main(argv: list[str] | None = None) -> dict:
 
     from active.experiment import ExperimentConfig
     from active.ladder import execute_plans, plan_all
-    from active.loop import build_planner_config, derive_seed, planner_workers, planning_dynamics
+    from active.planner_setup import build_planner_config, planner_workers, planning_dynamics
+    from active.seeds import derive_seed
     from active.run import compose_config
     from planner.pool import PlanPool
     from sim.execute import PouringExecutor

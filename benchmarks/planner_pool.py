@@ -7,7 +7,7 @@ what that buys on this machine, with the model and batches the experiment uses:
 
 * the cached dynamics model of the composed config (``dynamics.load_or_train``; trained on first
   use, ~6 min), wrapped with the known obstacles as ``experiment.known_obstacles`` says;
-* the planner config of the run (``active.loop.build_planner_config``: world skill limits,
+* the planner config of the run (``active.planner_setup.build_planner_config``: world skill limits,
   ``experiment.planner_propagation_budget``, 10,000 for experiment=quick);
 * batch ``test``: the run's test problems (``experiment.test_problems``), one plan each with
   beta_test and the run's per-problem seeds; batch ``train``: one refit chunk of training
@@ -59,7 +59,8 @@ def fingerprint(r: Any) -> Any:
 def experiment_batches(cfg: dict, seed: int, iteration: int) -> tuple[Any, Any, dict[str, list[PlanRequest]], dict]:
     """Dynamics model, planner config and the two request batches exactly as ``active.run`` builds them."""
     from active.experiment import ExperimentConfig
-    from active.loop import build_planner_config, derive_seed, planning_dynamics
+    from active.planner_setup import build_planner_config, planning_dynamics
+    from active.seeds import derive_seed
     from sim.problems import sample_problems
     from sim.world import WorldConfig
 

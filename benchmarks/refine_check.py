@@ -36,15 +36,15 @@ def run_check(run_dir: Path, method: str | None, steps: int, lr: float, world_na
     from sim.world import WorldConfig, check_world
 
     from active.experiment import ExperimentConfig
-    from active.loop import build_planner_config, derive_seed, planning_dynamics
+    from active.planner_setup import build_planner_config, planning_dynamics
+    from active.seeds import derive_seed
     from active.refine import refine_plans
-    from active.rundir import upgrade_config
 
     check_world(world_name)
     cfg_path = run_dir / "config.json"
     if not cfg_path.is_file():
         raise FileNotFoundError(f"{cfg_path} not found: RUN_DIR must be the output directory of python -m active.run")
-    cfg = upgrade_config(json.loads(cfg_path.read_text()))  # a run recorded before the planner's keys were derived too
+    cfg = json.loads(cfg_path.read_text())
     exp = ExperimentConfig.from_mapping(cfg["experiment"])
     if steps < 1 or not lr > 0:
         raise ValueError(f"--steps {steps} / --lr {lr}: allowed steps >= 1 and lr > 0")

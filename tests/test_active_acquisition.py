@@ -58,9 +58,6 @@ def test_choice_rule_depends_on_c():
     pick_lcb = lambda **kw: DiscountedMaxLCB(model, **kw)(cands).argmax().item()  # noqa: E731
     assert pick_lcb(c=-0.1) == 0
     assert pick_lcb(c=0.1) == 1
-    # the former string switch is refused with where it went
-    with pytest.raises(ValueError, match=r"acquisition.form = 'lcb' was removed.*acquisition=lcb"):
-        DiscountedMaxUCB(model, form="lcb")
 
 
 def test_a_single_trajectory_is_a_batch_of_one():
@@ -118,7 +115,7 @@ def test_straddle_needs_positive_threshold():
 def test_user_acquisition_plugs_in_by_target(tmp_path, monkeypatch):
     """The README's example: a user's class named by `acquisition._target_`, no edit of our code."""
     from active.experiment import ExperimentConfig
-    from active.loop import acquisition_factory
+    from active.acquisition_factory import acquisition_factory
 
     (tmp_path / "my_acq.py").write_text(
         "from active.acquisition import TrajectoryAcquisition\n"
@@ -145,7 +142,7 @@ def test_acquisition_group_builds_each_option_with_the_methods_c(group, cls):
     """configs/acquisition/<group>.yaml is a _partial_ spec; the loop completes it with the model, the
     method's c (where accepted) and d_max = experiment.d_max (where accepted)."""
     from active.experiment import ExperimentConfig
-    from active.loop import acquisition_factory
+    from active.acquisition_factory import acquisition_factory
     from active.methods import build_method
     from active.run import compose_config
 
@@ -183,7 +180,7 @@ def test_a_method_with_its_own_acquisition_spec_ignores_the_configured_one():
     """active_straddle names acquisition._target_: one run can compare it with the paper's methods, which keep the
     configured acquisition (here the paper's alpha) and their c."""
     from active.experiment import ExperimentConfig
-    from active.loop import acquisition_factory, check_method_acquisition
+    from active.acquisition_factory import acquisition_factory, check_method_acquisition
     from active.methods import build_method
     from active.run import compose_config
 
@@ -208,7 +205,7 @@ def test_a_method_with_its_own_acquisition_spec_ignores_the_configured_one():
 ])
 def test_a_methods_own_acquisition_spec_is_checked_before_compute(override, match):
     from active.experiment import ExperimentConfig
-    from active.loop import acquisition_factory, check_method_acquisition
+    from active.acquisition_factory import acquisition_factory, check_method_acquisition
     from active.methods import build_method
     from active.run import compose_config
 
@@ -218,11 +215,12 @@ def test_a_methods_own_acquisition_spec_is_checked_before_compute(override, matc
         check_method_acquisition("active_straddle", build_method("active_straddle", cfg["methods"]), make)
 
 
-def test_old_form_key_is_refused_naming_the_replacement():
+def test_an_acquisition_key_its_class_does_not_take_is_refused_before_compute():
+    from active.acquisition_factory import acquisition_factory
     from active.experiment import ExperimentConfig
-    from active.loop import acquisition_factory
 
-    with pytest.raises(ValueError, match=r"acquisition.form = 'lcb' was removed.*acquisition=lcb"):
+    with pytest.raises(ValueError, match=r"acquisition.form = 'lcb': not a parameter of "
+                                         r"active.acquisition.DiscountedMaxUCB; allowed \['c', 'gamma'"):
         acquisition_factory({"_target_": "active.acquisition.DiscountedMaxUCB", "gamma": 1.0, "form": "lcb"},
                             ExperimentConfig())
 
@@ -327,7 +325,8 @@ def test_admission_method_gets_the_test_beta_d_max_and_the_chunks_candidate_step
 
     from active.acquisition import TrajectoryAdmissionGain
     from active.experiment import ExperimentConfig
-    from active.loop import _candidate_steps, acquisition_factory
+    from active.acquisition_factory import acquisition_factory
+    from active.loop import _candidate_steps
     from active.methods import build_method
     from active.run import compose_config
 

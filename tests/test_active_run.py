@@ -17,9 +17,9 @@ import torch
 import safeio
 from active.experiment import ExperimentConfig
 from active.io import RunFileError, read_csv, write_csv
-from active.loop import TIMING_FIELDS, config_digest
+from active.identity import RUN_FORMAT_VERSION, config_digest
+from active.loop import TIMING_FIELDS
 from active.run import compose_config, run_experiment
-from active.rundir import legacy_config_digest
 from active.runlock import RunDirectoryError, read_owner
 
 REPO = Path(__file__).resolve().parents[1]
@@ -271,7 +271,7 @@ def test_a_plan_that_raises_is_recorded_and_the_run_goes_on(cache, straight_run,
     ("experiment.d_max=0", r"experiment.d_max = 0.*allowed > 0"),
     ("acquisition.gamma=1.5", r"gamma = 1.5: allowed \(0, 1\]"),
     ("acquisition._target_=nowhere.Acq", "cannot be imported"),
-    ("+acquisition.form=lcb", r"acquisition.form = 'lcb' was removed"),
+    ("+acquisition.form=lcb", r"acquisition.form = 'lcb': not a parameter of active.acquisition.DiscountedMaxUCB"),
     ("wandb.mode=loud", "wandb.mode"),
     ("seed=-1", r"^seed = -1: allowed an integer in \[0, 4294967295\]$"),
     ("world.sim.dx=0.05", r"world.sim.dx = 0.05: too coarse for the geometry.*Allowed: 0 < dx <= 0.01 m"),
@@ -344,14 +344,9 @@ def test_refused_rerun_leaves_the_directory_as_it_was(cache, straight_run, tmp_p
 
 
 def test_moved_cache_and_leftovers_do_not_stop_a_finished_run(cache, straight_run, tmp_path):
-    """The cache moved (state written before the cache left the digest), and temporary files of a kill."""
+    """The cache moved (its location is not part of the digest), and temporary files of a kill."""
     out = _copy_run(straight_run[0], tmp_path / "run")
     moved = _copy_run(cache, tmp_path / "moved-cache")
-    old_cfg = json.loads((out / "config.json").read_text())
-    state_path = out / "active_balanced" / "state.pt"
-    st = torch.load(state_path, weights_only=False)
-    st["digest"] = legacy_config_digest(old_cfg)  # as the previous version wrote it
-    safeio.save_torch(state_path, st)
     orphans = [out / ".calibration_set.pt.123.abcd.tmp", out / "random_actions" / ".results.csv.9.ef01.tmp"]
     for p in orphans:
         p.write_bytes(b"half a file")
@@ -409,8 +404,7 @@ def test_damaged_run_files_are_named_with_the_fix(cache, straight_run, tmp_path,
 
 def test_stale_calibration_set_of_another_seed_is_not_reused(cache, straight_run, tmp_path, monkeypatch):
     """A seed-0 run killed before its first iteration left its calibration set; a seed-1 run rebuilds it."""
-    import active.loop
-    import active.report
+    import active.run
 
     out = tmp_path / "run"
     out.mkdir()
@@ -430,9 +424,9 @@ def test_stale_calibration_set_of_another_seed_is_not_reused(cache, straight_run
         def run(self):
             return []
 
-    monkeypatch.setattr(active.loop, "make_calibration_set", fake_calibration)
-    monkeypatch.setattr(active.loop, "MethodRun", NoLoop)
-    monkeypatch.setattr(active.report, "report", lambda dirs, o: {"table": ""})
+    monkeypatch.setattr(active.run, "make_calibration_set", fake_calibration)
+    monkeypatch.setattr(active.run, "MethodRun", NoLoop)
+    monkeypatch.setattr(active.run, "report", lambda dirs, o: {"table": ""})
     cfg = compose_config(tiny_overrides(cache) + ["seed=1", "runner=sequential"])
     run_experiment(cfg, out)
     assert made == [1] and all(float(c["y"][0]) == 1.0 for c in seen)
@@ -455,29 +449,19 @@ def test_stale_calibration_set_rerun_equals_a_fresh_run(cache, straight_run, tmp
         assert read_csv(out / method / "calibration.csv") == read_csv(tmp_path / "fresh" / method / "calibration.csv")
 
 
-def test_recalibrate_rebuilds_old_calibration_rows_from_the_checkpoints(straight_run, tmp_path):
-    """A run whose calibration rows predate the as-fitted columns (coverage95 and nll were against the raw
-    labels): ``python -m active.recalibrate`` gives back a fresh run's rows wherever the iteration's MDE
-    checkpoint is there, and moves the old figures to the ``_raw`` columns where it is not."""
-    from active.loop import legacy_calibration_row
-    from active.recalibrate import main as recalibrate
-
-    out = tmp_path / "run"
-    shutil.copytree(straight_run[0], out)
-    for method in ("active_balanced", "random_actions"):
-        state = torch.load(out / method / "state.pt", weights_only=False)
-        state["calibration"] = [{**{k: v for k, v in r.items() if not k.endswith("_raw")},
-                                 "coverage95": r["coverage95_raw"], "nll": r["nll_raw"]} for r in state["calibration"]]
-        torch.save(state, out / method / "state.pt")
-    (out / "random_actions" / "mde_iter001.pt").unlink()
-    assert recalibrate([str(out)]) == 0
-    assert read_csv(out / "active_balanced" / "calibration.csv") == read_csv(straight_run[0] / "active_balanced" / "calibration.csv")
-    fresh, rebuilt = (read_csv(d / "random_actions" / "calibration.csv") for d in (straight_run[0], out))
-    assert rebuilt[1] == fresh[1]
-    assert rebuilt[0]["coverage95"] == rebuilt[0]["nll"] == ""  # no checkpoint: as-fitted figures unknown
-    assert (rebuilt[0]["coverage95_raw"], rebuilt[0]["nll_raw"]) == (fresh[0]["coverage95_raw"], fresh[0]["nll_raw"])
-    row = torch.load(out / "random_actions" / "state.pt", weights_only=False)["calibration"][1]
-    assert legacy_calibration_row(row) == row  # a resumed run leaves rows of the new kind as they are
+def test_state_of_another_run_format_is_refused_naming_both_versions(cache, straight_run, tmp_path):
+    """A run directory written by another run format version is refused before any compute, with both versions
+    and how to rerun in the message; nothing in it changes."""
+    out = _copy_run(straight_run[0], tmp_path / "run")
+    state_path = out / "active_balanced" / "state.pt"
+    st = torch.load(state_path, weights_only=False)
+    del st["format"], st["version"]  # as the first run format wrote it
+    safeio.save_torch(state_path, st)
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    with pytest.raises(RunFileError, match=rf"run format version 1; this code reads version {RUN_FORMAT_VERSION}"
+                                           r".*hydra\.run\.dir"):
+        run_experiment(compose_config(tiny_overrides(cache)), out)
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
 
 
 def test_experiment_config_lists_methods():
@@ -496,7 +480,9 @@ def test_model_plan_method_plans_its_candidates_without_the_mde():
 
     import numpy as np
 
-    from active.loop import MethodRun, PlanNeed, derive_seed
+    from active.loop import MethodRun
+    from active.needs import PlanNeed
+    from active.seeds import derive_seed
     from active.methods import ModelPlan, RandomPlan, build_method
     from task.problems import Problem
 
@@ -523,7 +509,9 @@ def test_model_plan_fallback_replaces_refused_rounds_by_plans_of_the_model_alone
 
     import numpy as np
 
-    from active.loop import MethodRun, PlanNeed, derive_seed
+    from active.loop import MethodRun
+    from active.needs import PlanNeed
+    from active.seeds import derive_seed
     from active.methods import Choice
     from task.problems import Problem
 

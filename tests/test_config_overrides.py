@@ -17,9 +17,9 @@ import pytest
 import yaml
 
 from active.experiment import ExperimentConfig
-from active.loop import DERIVED_PLANNER_KEYS, NOT_RUN_SETTINGS, config_digest
+from active.identity import config_digest
+from active.planner_setup import DERIVED_PLANNER_KEYS, NOT_RUN_SETTINGS
 from active.run import compose_config, run_experiment, run_settings
-from active.rundir import accepted_digests, upgrade_config
 from planner import PlannerConfig
 
 REPO = Path(__file__).resolve().parents[1]
@@ -60,9 +60,9 @@ EXPERIMENT_ALTERNATIVES = {
 @pytest.fixture(autouse=True)
 def _no_geometry_check(monkeypatch):
     """The world's geometry check (about a second of signed distances) is tested elsewhere; not needed here."""
-    import active.preflight
+    import active.run
 
-    monkeypatch.setattr(active.preflight, "check_geometry", lambda world: None)
+    monkeypatch.setattr(active.run, "check_geometry", lambda world: None)
 
 
 def settings(overrides: list[str]):
@@ -213,17 +213,10 @@ def test_documented_overrides_arrive():
     assert instantiate(compose_config(["mde.latent_std_min=0.05"])["mde"]).config.latent_std_min == 0.05
 
 
-def test_the_acquisition_group_keeps_the_digests_of_runs_written_before_it():
-    """A run directory written with `acquisition: {_target_: DiscountedMaxUCB, gamma, form: eq1|lcb}` still
-    resumes: the same acquisition has the same digest (active.loop.legacy_acquisition)."""
-    from active.rundir import legacy_config_digest
-
+def test_the_acquisition_is_part_of_the_digest():
+    """Another acquisition is another configuration: its runs never extend each other's directories."""
     new = compose_config(["experiment=tiny"])
-    old = {**new, "acquisition": {"_target_": "active.acquisition.DiscountedMaxUCB", "gamma": 1.0, "form": "eq1"}}
-    assert config_digest(new) == config_digest(old) and legacy_config_digest(new) == legacy_config_digest(old)
-    lcb = compose_config(["experiment=tiny", "acquisition=lcb"])
-    old_lcb = {**old, "acquisition": {**old["acquisition"], "form": "lcb"}}
-    assert config_digest(lcb) == config_digest(old_lcb) != config_digest(new)
+    assert config_digest(compose_config(["experiment=tiny", "acquisition=lcb"])) != config_digest(new)
     assert config_digest(compose_config(["experiment=tiny", "acquisition=variance"])) != config_digest(new)
 
 
@@ -263,52 +256,15 @@ def test_problems_are_the_worlds_and_bit_identical_to_before():
         sample_problems(world, 1, 0, world="moon")
 
 
-# ------------------------------------------------------------------ run directories from before
-#: the planner and experiment blocks ``experiment=tiny`` recorded before the planner's keys were derived
-OLD_TINY_PLANNER = {
-    "state_low": [0.05, 0.03, 0.0, 0.0, 0.0], "state_high": [0.55, 0.35, 2.4, 1.0, 1.0], "move_x": [0.05, 0.55],
-    "move_y": [0.03, 0.35], "pour_theta": [0.0, 2.4], "pour_hold": [0.0, 1.5], "p_move": 0.5, "max_actions": 6,
-    "goal_tol": 0.05, "spill_limit": 0.02, "beta": 2.0, "d_max": 0.07, "n_candidates": 9, "time_budget": 1.0,
-    "propagation_budget": 20000, "seed": 0, "goal_bias": 0.05, "batch_min": 16, "batch_max": 256,
-    "last_step_proposals": 32, "distance_weights": [1.0, 1.0, 1.0, 1.0], "clip_to_bounds": True,
-    "prune_dead_states": True, "stuck_tilt": 0.05, "stuck_move": 0.005, "torch_threads": 1, "ompl_log_level": "error",
-    "workers": "auto", "problems": {"start_x": [0.3, 0.55], "start_y": [0.05, 0.3], "goal": [0.3, 0.8]},
-}
-OLD_TINY_EXPERIMENT = {
-    "name": "tiny", "methods": ["active_balanced", "random_actions"], "iterations": 2, "trajectories_per_iteration": 2,
-    "refit_every": 2, "candidates": 2, "test_problems": 2, "random_actions_length": 2, "d_max": 0.07,
-    "beta_train": [-2.0, 1.0], "beta_switch_iteration": 1, "beta_test": 2.0, "calibration_trajectories": 2,
-    "planner_propagation_budget": 500, "plan_goal_tol": None,
-}
-
-
-@pytest.mark.parametrize("group, key, off, value", [
-    ("mde", "lengthscale_max", None, 2), ("mde", "latent_std_min", None, 0.05), ("mde", "label_max", None, 0.3),
-    ("mde", "latent_std_max", None, 0.05), ("mde", "noise_lengthscale_max", None, 2), ("mde", "hyperparameter_priors", "none", "gamma"),
-    ("experiment", "fallback", "random_actions", "model_plan"), ("experiment", "plan_goal_tol", None, 0.025),
-    ("experiment", "plan_accept_tol", None, 0.05), ("experiment", "plan_spill_limit", None, 0.012)])
-def test_a_key_added_later_keeps_the_digest_at_its_off_value(group, key, off, value):
-    """mde.lengthscale_max (session 15), mde.latent_std_min (session 17), mde.label_max and mde.noise_lengthscale_max
-    (session 18), mde.hyperparameter_priors and experiment.fallback (session 23), mde.latent_std_max (session 37): the off value is the behaviour
-    before the key existed, so a run directory written then keeps its digest; any other value is another
-    configuration. The MDE's priors (on by default since session 41) and the planner's aim (session 21; on by default
-    since session 42): a recorded block without the key reads back at its off value (what acted when it was recorded)."""
-    new = compose_config(["experiment=tiny", f"{group}.{key}={'null' if off is None else off}"])
-    assert new[group][key] == off
-    old = {**new, group: {k: v for k, v in new[group].items() if k != key}}
-    assert config_digest(old) == config_digest(new)
-    assert upgrade_config(old)[group][key] == off
-    assert config_digest(compose_config(["experiment=tiny", f"{group}.{key}={value}"])) != config_digest(new)
-
-
-def test_a_run_directory_recorded_before_the_derived_keys_still_resumes():
+@pytest.mark.parametrize("group, key, value", [
+    ("mde", "lengthscale_max", 2), ("mde", "latent_std_min", 0.05), ("mde", "label_max", 0.3),
+    ("mde", "latent_std_max", 0.05), ("mde", "noise_lengthscale_max", 2), ("mde", "hyperparameter_priors", "gamma"),
+    ("experiment", "fallback", "model_plan"), ("experiment", "plan_goal_tol", 0.02),
+    ("experiment", "plan_accept_tol", 0.04), ("experiment", "plan_spill_limit", 0.01)])
+def test_every_result_relevant_key_is_part_of_the_digest(group, key, value):
+    """Any other value of a key that changes results is another configuration."""
     new = compose_config(["experiment=tiny"])
-    old = {**new, "planner": OLD_TINY_PLANNER, "experiment": OLD_TINY_EXPERIMENT}
-    assert config_digest(upgrade_config(old)) == config_digest(new)
-    assert config_digest(old) in accepted_digests(new, old)  # what its state.pt files carry
-    other = compose_config(["experiment=tiny", "experiment.candidates=3"])
-    assert config_digest(old) not in accepted_digests(other, old)
-    assert upgrade_config(new) == new
+    assert config_digest(compose_config(["experiment=tiny", f"{group}.{key}={value}"])) != config_digest(new)
 
 
 def test_method_specs_are_config_and_arrive_in_the_method_a_run_builds(tmp_path):
@@ -323,7 +279,7 @@ def test_method_specs_are_config_and_arrive_in_the_method_a_run_builds(tmp_path)
     def built(overrides: list[str], method: str):
         cfg = compose_config(["experiment=tiny", *overrides])
         _, _, pc, _ = run_settings(cfg)
-        ctx = SimpleNamespace(cfg=cfg, out=tmp_path, planner_cfg=pc, accepted_digests=frozenset())
+        ctx = SimpleNamespace(cfg=cfg, out=tmp_path, planner_cfg=pc)
         return MethodRun(ctx, method, lambda: None, None, None).spec
 
     assert built([], "active_balanced").acquisition == {"c": 0.1}
@@ -337,12 +293,10 @@ def test_method_specs_are_config_and_arrive_in_the_method_a_run_builds(tmp_path)
         settings(["experiment.methods=[active_balanced,mine]"])
 
 
-def test_a_method_spec_enters_the_digest_only_when_it_differs_from_what_runs_had_before():
-    """Runs written before ``methods:`` was part of the config keep their digest; a changed spec of a
-    method the run executes changes it; a change to a method the run does not execute does not."""
+def test_a_method_spec_enters_the_digest_only_for_the_methods_a_run_executes():
+    """A changed spec of a method the run executes changes the digest; a change to a method the run does not
+    execute does not."""
     base = compose_config(["experiment=tiny"])
-    legacy = {k: v for k, v in base.items() if k != "methods"}
-    assert config_digest(base) == config_digest(legacy)
     assert config_digest(compose_config(["experiment=tiny", "methods.active_balanced.acquisition.c=0.2"])) != \
         config_digest(base)
     assert config_digest(compose_config(["experiment=tiny", "methods.active_mean.acquisition.c=0.2"])) == \

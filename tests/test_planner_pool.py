@@ -169,7 +169,8 @@ def test_workers_values():
 
 
 def test_workers_key_is_validated_before_compute_and_left_out_of_the_digest(tmp_path):
-    from active.loop import build_planner_config, config_digest, planner_workers
+    from active.identity import config_digest
+    from active.planner_setup import build_planner_config, planner_workers
     from active.run import compose_config, run_experiment
 
     cfg = compose_config(["experiment=tiny", "wandb.mode=disabled", "progress=false", "planner.workers=0",
@@ -182,8 +183,8 @@ def test_workers_key_is_validated_before_compute_and_left_out_of_the_digest(tmp_
     assert config_digest(ok) == config_digest(compose_config(["experiment=tiny", "planner.workers=auto"]))
     default = compose_config(["experiment=tiny"])
     assert default["planner"]["workers"] == "auto"
-    legacy = {**default, "planner": {k: v for k, v in default["planner"].items() if k != "workers"}}
-    assert config_digest(legacy) == config_digest(default)  # run directories from before the key resume
+    without = {**default, "planner": {k: v for k, v in default["planner"].items() if k != "workers"}}
+    assert config_digest(without) == config_digest(default)  # where plans are computed is not what they are
     from active.experiment import ExperimentConfig
     from sim.world import WorldConfig
 

@@ -25,8 +25,9 @@ import safeio
 from active import runlock
 from active.io import RunFileError, load_torch
 from active.preflight import check_geometry, check_seed, check_writable, max_dx
-from active.rundir import (CALIBRATION_FORMAT, accepted_digests, check_run_directory, config_differences,
-                           legacy_config_digest, load_calibration, load_mde_checkpoint, save_calibration)
+from active.calibration import CALIBRATION_FORMAT, load_calibration, save_calibration
+from active.identity import RUN_FORMAT, RUN_FORMAT_VERSION, config_differences, config_digest
+from active.rundir import check_run_directory, load_mde_checkpoint
 from active.runlock import RunDirectoryError, RunLock, RunLockedError, read_owner
 
 REPO = Path(__file__).resolve().parents[1]
@@ -202,32 +203,25 @@ def _cfg(**over) -> dict:
     return cfg
 
 
-def test_digests_ignore_the_cache_location_and_accept_legacy_state():
-    from active.loop import config_digest
-
+def test_digests_ignore_the_cache_location():
     a, moved = _cfg(), _cfg(dynamics={"cache_root": "/new/cache", "progress": True})
     assert config_digest(a) == config_digest(moved)
     assert config_digest(a) == config_digest(_cfg(experiment={"iterations": 20}))
     assert config_digest(a) != config_digest(_cfg(seed=1))
-    # state.pt written before this change holds the legacy digest, which covered the cache location
-    assert legacy_config_digest(a) in accepted_digests(a, None)
-    assert legacy_config_digest(a) in accepted_digests(moved, recorded=a)  # cache moved since: still resumable
-    assert legacy_config_digest(a) not in accepted_digests(_cfg(seed=1), recorded=a)
     assert config_differences(a, _cfg(seed=1, mde={"nu": 1.5})) == ["mde.nu: 2.5 -> 1.5", "seed: 0 -> 1"]
     assert config_differences(a, moved) == []
 
 
 def _write_state(folder: Path, digest: str, completed: int = 1) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
-    safeio.save_torch(folder / "state.pt", {"digest": digest, "completed": completed, "mde_path": None})
+    safeio.save_torch(folder / "state.pt", {"format": RUN_FORMAT, "version": RUN_FORMAT_VERSION, "digest": digest,
+                                            "completed": completed, "mde_path": None})
     for name in ("results.csv", "categories.csv", "dataset.pt"):
         (folder / name).write_text("x")
     return folder / "state.pt"
 
 
 def test_directory_of_another_configuration_is_refused_with_the_differences(tmp_path):
-    from active.loop import config_digest
-
     old = _cfg()
     safeio.write_json(tmp_path / "config.json", old)
     _write_state(tmp_path / "a", config_digest(old), completed=2)
@@ -236,8 +230,7 @@ def test_directory_of_another_configuration_is_refused_with_the_differences(tmp_
                                                 r": it differs in seed: 0 -> 1\. Nothing was changed"):
         check_run_directory(tmp_path, _cfg(seed=1))
     assert (tmp_path / "config.json").read_bytes() == before
-    accepted, resumable = check_run_directory(tmp_path, _cfg(dynamics={"cache_root": "/moved"}))
-    assert resumable and config_digest(old) in accepted
+    assert check_run_directory(tmp_path, _cfg(dynamics={"cache_root": "/moved"}))  # resumable
 
 
 def test_damaged_state_names_the_file_and_what_survives(tmp_path):
@@ -256,27 +249,24 @@ def _set(value: float) -> dict:
 
 
 def test_calibration_set_is_reused_only_for_its_own_configuration(tmp_path, caplog):
-    from active.loop import config_digest
-
     path = tmp_path / "calibration_set.pt"
     seed0, seed1 = _cfg(), _cfg(seed=1)
-    acc0, acc1 = frozenset({config_digest(seed0)}), frozenset({config_digest(seed1)})
-    assert load_calibration(path, seed0, acc0, False) is None  # none yet
+    assert load_calibration(path, seed0) is None  # none yet
     save_calibration(path, _set(0.0), seed0)
-    assert load_calibration(path, seed0, acc0, False)["y"][0] == 0.0  # reused by its own configuration
+    assert load_calibration(path, seed0)["y"][0] == 0.0  # reused by its own configuration
     with caplog.at_level(logging.WARNING):  # a seed-0 set left by a run killed before its first iteration
-        assert load_calibration(path, seed1, acc1, False) is None
-    assert "made by another configuration (seed: 0 -> 1); rebuilding it" in caplog.text
+        assert load_calibration(path, seed1) is None
+    assert "made by another configuration or run format (seed: 0 -> 1); rebuilding it" in caplog.text
     saved = torch.load(path, weights_only=False)
     assert saved["format"] == CALIBRATION_FORMAT and saved["digest"] == config_digest(seed0)
-    # the old untagged format: reused only when a completed iteration vouches for it, then tagged
-    safeio.save_torch(path, {"X": torch.zeros(2, 8), "y": torch.full((2,), 5.0)})
-    assert load_calibration(path, seed1, acc1, False) is None
-    assert load_calibration(path, seed1, acc1, True)["y"][0] == 5.0
-    assert torch.load(path, weights_only=False)["digest"] == config_digest(seed1)
-    safeio.save_torch(path, [1, 2])
-    with pytest.raises(RunFileError, match="is not a calibration set"):
-        load_calibration(path, seed1, acc1, True)
+    assert saved["version"] == RUN_FORMAT_VERSION
+    # another run format version: rebuilt, never reused
+    safeio.save_torch(path, {**saved, "version": RUN_FORMAT_VERSION - 1})
+    assert load_calibration(path, seed0) is None
+    for bad in ({"X": torch.zeros(2, 8), "y": torch.full((2,), 5.0)}, [1, 2]):  # untagged, or not a set at all
+        safeio.save_torch(path, bad)
+        with pytest.raises(RunFileError, match="is not a calibration set of this runner"):
+            load_calibration(path, seed1)
 
 
 @pytest.mark.parametrize("damage", ["truncate", "garbage"])
@@ -286,7 +276,7 @@ def test_damaged_calibration_set_names_the_file_and_the_fix(tmp_path, damage):
     path.write_bytes(path.read_bytes()[:200] if damage == "truncate" else b"\x80\x02garbage")
     with pytest.raises(RunFileError, match=rf"{path} is unreadable .*delete it and run the same command again: it "
                                            r"is rebuilt from the configuration") as e:
-        load_calibration(path, _cfg(), frozenset(), False)
+        load_calibration(path, _cfg())
     assert "weights_only" not in str(e.value)
 
 
