@@ -5,10 +5,11 @@ them (a test keeps the two in sync) so that Hydra can override any field on the 
 The dataclasses do not read the YAML themselves because ``configs/`` is not shipped inside an
 installed package.
 
-Caching: a dataset is identified by :func:`data_hash` (data-generation fields plus the *content*
-of the world config, so that editing the world geometry regenerates the data); a checkpoint by
-:func:`model_hash` (the data hash plus the model and training fields). Evaluation, benchmark and
-cache-location fields are in neither hash.
+Caching: a dataset is identified by :func:`data_hash` (a digest of the data-generation fields and the
+*content* of the world config, so that editing the world geometry regenerates the data; of the world,
+only what reaches the source data, :func:`source_world`); a checkpoint by :func:`model_hash` (the data
+hash plus the model and training fields). Evaluation, benchmark and cache-location fields are in
+neither hash.
 """
 
 from __future__ import annotations
@@ -25,10 +26,11 @@ import yaml
 
 from sim.world import DEFAULT_CONFIG, WorldConfig
 
-#: bump when the dataset layout or the generator's semantics change (invalidates cached data)
-DATA_FORMAT_VERSION = 1
-#: bump when the network / checkpoint layout changes (invalidates cached checkpoints)
-MODEL_FORMAT_VERSION = 2
+#: bump when the dataset layout, the generator's semantics or what :func:`data_hash` covers change (a cached or
+#: shipped dataset of another version is refused, and the message says how to make it again)
+DATA_FORMAT_VERSION = 2
+#: bump when the network / checkpoint layout or what :func:`model_hash` covers change (the same for checkpoints)
+MODEL_FORMAT_VERSION = 3
 
 TRAIN_COMMAND = "python -m dynamics.train"
 ACTIVATIONS = ("silu", "tanh", "relu")
@@ -93,7 +95,7 @@ class DataConfig:
     (next to the target cup), a pour of the full cup with an angle in ``pour_theta`` (the steep part of its
     outcome curve), and with ``p_second_pour`` a second, steeper pour. Random sequences put few full-cup
     pours there (59 of 5,976 transitions in the default data), where a plan's partial pour is decided
-    (BENCHMARKS.md, session 28). With ``pour_batches`` = 0 the pour fields are not part of the data hash.
+    (BENCHMARKS.md, session 28).
     """
 
     seed: int = 0
@@ -302,15 +304,13 @@ class DynamicsConfig:
 
 
 # ---------------------------------------------------------------------------------- hashing
-def world_dict(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
-    """The world config the data is generated with, as a canonical plain mapping.
-
-    ``world_cfg`` (a ``sim.world.WorldConfig``, or a plain / OmegaConf mapping of the world YAML's
-    fields, e.g. the main job's ``cfg.world``) takes precedence over the ``data.world`` file, so a
-    world changed on the experiment's command line reaches the data generator and its hash. The
-    mapping is canonicalised through ``WorldConfig`` (defaults filled in), so equal worlds hash
-    equally however they were given.
-    """
+def world_config(data: DataConfig, world_cfg: Any = None) -> WorldConfig:
+    """The world the data is generated in: ``world_cfg`` (a ``sim.world.WorldConfig``, or a plain / OmegaConf
+    mapping of the world YAML's fields, e.g. the main job's ``cfg.world``) if given, else the ``data.world``
+    file (default: ``sim``'s ``configs/world/default.yaml``), so a world changed on the experiment's command
+    line reaches the data generator and its hash."""
+    if isinstance(world_cfg, WorldConfig):
+        return world_cfg
     if world_cfg is None:
         path = Path(data.world) if data.world else DEFAULT_CONFIG
         if not path.is_file():
@@ -318,59 +318,40 @@ def world_dict(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
         what, world_cfg = str(path), yaml.safe_load(path.read_text())
     else:
         what = "world config"
-    if not isinstance(world_cfg, WorldConfig):
-        try:
-            world_cfg = WorldConfig.from_mapping(_to_plain(world_cfg))
-        except (ValueError, TypeError, KeyError) as e:
-            raise DynamicsError(f"{what} is not a valid world config: {e}") from None
-    return json.loads(json.dumps(dataclasses.asdict(world_cfg), default=_plain))
+    try:
+        return WorldConfig.from_mapping(_to_plain(world_cfg))
+    except (ValueError, TypeError, KeyError) as e:
+        raise DynamicsError(f"{what} is not a valid world config: {e}") from None
 
 
-def solver_dict(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
-    """The solver settings of that world with the solver's defaults filled in.
+def world_dict(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
+    """The world config the data is generated with (:func:`world_config`) as a canonical plain mapping
+    (defaults filled in), so equal worlds hash equally however they were given."""
+    return json.loads(json.dumps(dataclasses.asdict(world_config(data, world_cfg)), default=_plain))
 
-    Part of the data hash so that a physics default that changes (e.g. ``sim.volume_correction``)
-    invalidates cached datasets even when the world YAML does not change.
+
+def source_world(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
+    """What a source-world dataset depends on of its world: the world config (:func:`world_dict`) with every
+    solver setting, the solver's defaults filled in (so that a changed physics default makes new data), less
+    what does not reach the data:
+
+    * the plant: the source world has none (``WorldConfig.obstacle_bodies``), so a changed plant (the target
+      world's deviation) keeps the source data; what holds target-world data keys on :func:`plant_dict` too;
+    * the goal range (``problems.goal``): the generator draws starts and actions, never a goal (goals only pose
+      planning problems), so a world that poses other goals keeps its data;
+    * where the solver runs (``sim.arch``): CPU and GPU make the same data within ``benchmarks.check_arch``'s
+      tolerances, and a GPU run uses the CPU-made shipped data instead of simulating it again;
+    * ``sim.n_envs``: how many environments one solver call runs at once, which ``data.batch_size`` sets.
     """
-    world = WorldConfig.from_mapping(world_dict(data, world_cfg))
-    sim = dataclasses.asdict(world.sim_config(1))
-    for k in ("n_envs", "arch", "max_particles"):
-        sim.pop(k, None)
-    for k, off in NEUTRAL_SOLVER_SETTINGS.items():  # a physics term switched off leaves every number unchanged
-        if sim.get(k) == off:
-            sim.pop(k)
-    return json.loads(json.dumps(sim, default=_plain))
-
-
-#: solver settings added after datasets were cached, with the value that switches their term off: at that
-#: value the solver's numbers are bit-identical to those of the code before the setting existed
-#: (tests/test_sim_solver.py), so they are left out of the data hash and older caches stay valid
-NEUTRAL_SOLVER_SETTINGS = {"viscosity": 0.0, "stretch_relax": 0.0, "boundary_density": False,
-                           "box_normals": "central"}  # the rule before the setting existed
-
-
-#: the problems' goal range the shipped source data were made under. No goal enters the source data (the
-#: generator draws starts and plant poses, never a goal; goals only pose the planning problems), so a
-#: dataset's identity carries this value whatever the world's range: a world that poses other goals
-#: keeps its data, its cache and the shipped files
-DATA_GOAL_RANGE = [0.3, 0.8]
-
-
-def without_goal_range(world: dict[str, Any]) -> dict[str, Any]:
-    """``world`` (a :func:`world_dict`, changed in place and returned) with its goal range normalised."""
-    if "problems" in world:
-        world["problems"]["goal"] = list(DATA_GOAL_RANGE)
-    return world
-
-
-def data_format(world: Mapping[str, Any]) -> Any:
-    """The format entry of a dataset's identity for that world (a :func:`world_dict`).
-
-    Since session 14 a dataset records the executed action (a move target rounded to the world's
-    ``skills.lattice``), not the commanded one. The two differ only on a lattice, so only a lattice
-    world's identity carries the mark: data of a continuous world keeps its hash and stays valid."""
-    lattice = world.get("skills", {}).get("lattice", 0.0)
-    return DATA_FORMAT_VERSION if not lattice else [DATA_FORMAT_VERSION, "executed actions"]
+    world = world_config(data, world_cfg)
+    out = world_dict(data, world)
+    out.pop("plant")
+    out["problems"].pop("goal")
+    solver = dataclasses.asdict(world.sim_config(1))
+    for k in ("arch", "n_envs"):
+        solver.pop(k)
+    out["sim"] = json.loads(json.dumps(solver, default=_plain))
+    return out
 
 
 def _digest(obj: Any) -> str:
@@ -378,28 +359,11 @@ def _digest(obj: Any) -> str:
 
 
 def data_hash(cfg: DynamicsConfig, world_cfg: Any = None) -> str:
-    """Identity of a source-world dataset: generator fields (without the world path) + world content
-    without the plant + format.
-
-    The source world has no plant (``WorldConfig.obstacle_bodies``), so a change of the plant (the
-    target world's deviation) leaves the source data, its cache and the shipped file valid. Anything
-    that holds target-world data keys on :func:`plant_dict` as well (``dynamics.evaluate``).
-    """
+    """Identity of a source-world dataset: a digest of the format version, every generator field (``data.world``
+    as its content, :func:`source_world`, not its path)."""
     d = _plain(cfg.data)
     d.pop("world")
-    if not d["pour_batches"]:  # no focused pours: the hash of the data before they existed
-        for k in POUR_FIELDS:
-            d.pop(k)
-    world = without_goal_range(world_dict(cfg.data, world_cfg))
-    world.pop("plant")
-    # where the solver ran is not what the data are (CPU and GPU agree within benchmarks.check_arch's
-    # tolerances): a GPU run uses the shipped data. Normalised, not dropped, so existing hashes stay valid.
-    world.get("sim", {})["arch"] = "cpu"
-    for k, off in NEUTRAL_SOLVER_SETTINGS.items():  # as solver_dict: a setting at its "before" value is no change
-        if world.get("sim", {}).get(k) == off:
-            world["sim"].pop(k)
-    return _digest({"format": data_format(world), "data": d, "world": world,
-                    "solver": solver_dict(cfg.data, world_cfg)})
+    return _digest({"format": DATA_FORMAT_VERSION, "data": d, "world": source_world(cfg.data, world_cfg)})
 
 
 #: the data fields of the focused pours (:class:`DataConfig`): the random sequences' batches do not depend on them
@@ -412,19 +376,10 @@ def plant_dict(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
 
 
 def model_hash(cfg: DynamicsConfig, dhash: str | None = None, world_cfg: Any = None) -> str:
-    """Identity of a checkpoint: dataset identity + model + training fields + format."""
-    parts = {"model": _plain(cfg.model), "train": _plain(cfg.train)}
-    for part, neutral in (("model", NEUTRAL_MODEL_SETTINGS), ("train", NEUTRAL_TRAIN_SETTINGS)):
-        for k, off in neutral.items():  # as NEUTRAL_SOLVER_SETTINGS: cached checkpoints stay valid
-            if parts[part].get(k) == off:
-                parts[part].pop(k)
-    return _digest({"format": MODEL_FORMAT_VERSION, "data": dhash or data_hash(cfg, world_cfg), **parts})
-
-
-#: model and training settings added after checkpoints were cached, with the value that gives the model
-#: (and trains it) exactly as before
-NEUTRAL_MODEL_SETTINGS = {"ensemble": 1}
-NEUTRAL_TRAIN_SETTINGS = {"lr_schedule": "constant"}
+    """Identity of a checkpoint: a digest of the format version, the dataset's identity and every model and
+    training field."""
+    return _digest({"format": MODEL_FORMAT_VERSION, "data": dhash or data_hash(cfg, world_cfg),
+                    "model": _plain(cfg.model), "train": _plain(cfg.train)})
 
 
 def ensemble_member(cfg: DynamicsConfig, k: int) -> DynamicsConfig:

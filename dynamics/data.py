@@ -29,13 +29,12 @@ from tqdm.auto import tqdm
 import safeio
 from sim.scene import Body
 from sim.skills import Obstacles, cup_boundary, plan_schedule
-from sim.world import WorldConfig
 from task import ACTION_DIM, STATE_DIM, check_world, sample_problems
 from task import SKILL_MOVE as MOVE
 from task import SKILL_POUR as POUR
 
 from .config import (DATA_FORMAT_VERSION, POUR_FIELDS, TRAIN_COMMAND, DataConfig, DynamicsError, _digest, _plain,
-                     data_format, solver_dict, without_goal_range, world_dict)
+                     plant_dict, source_world, world_config)
 
 log = logging.getLogger(__name__)
 
@@ -291,14 +290,14 @@ def generate_transitions(data: DataConfig, world: str = "source", n_batches: int
     with ``shard_dir`` every finished batch is saved there and reused on the next call (resume).
     In the target world the plant pose of every trajectory is drawn like a planning problem's.
     ``world_cfg`` (WorldConfig or mapping) replaces the ``data.world`` file (see
-    :func:`dynamics.config.world_dict`).
+    :func:`dynamics.config.world_config`).
     """
     from sim.execute import PouringExecutor  # Taichi: loaded only to simulate, not by `import dynamics`
 
     check_world(world)
     n_batches = (data.pour_batches if pours else data.n_batches) if n_batches is None else int(n_batches)
     seed = data.seed if seed is None else int(seed)
-    wcfg = load_world(data, world_cfg)
+    wcfg = world_config(data, world_cfg)
     sampler = SequenceSampler(data, wcfg)
     B = data.batch_size
     ex = executor or PouringExecutor(wcfg)
@@ -361,22 +360,14 @@ def shard_identity(data: DataConfig, wcfg: Any, pours: bool = False) -> str:
     d = _plain_data(data)
     for k in ("world", "n_batches", "pour_batches") + (() if pours else POUR_FIELDS):
         d.pop(k, None)
-    world = without_goal_range(world_dict(data, wcfg))
-    return _digest({"format": data_format(world), "data": d, "world": world,
-                    "solver": solver_dict(data, wcfg)})
+    return _digest({"format": DATA_FORMAT_VERSION, "data": d, "world": source_world(data, wcfg),
+                    "plant": plant_dict(data, wcfg)})
 
 
 def generate_source_dataset(cfg: Any, shard_dir: str | Path | None = None, progress: bool = True,
                             world_cfg: Any = None) -> Transitions:
     """The training data of the model: ``cfg.data`` sequences executed in the source world."""
     return generate_transitions(cfg.data, "source", shard_dir=shard_dir, progress=progress, world_cfg=world_cfg)
-
-
-def load_world(data: DataConfig, world_cfg: Any = None) -> Any:
-    """The ``sim.world.WorldConfig`` for ``data`` (``world_cfg`` overrides the ``data.world`` file)."""
-    if world_cfg is not None and isinstance(world_cfg, WorldConfig):
-        return world_cfg
-    return WorldConfig.from_mapping(world_dict(data, world_cfg))
 
 
 def _collect(results: list, jit: np.ndarray, traj_offset: int) -> tuple[Transitions, dict]:

@@ -32,8 +32,8 @@ from hydra import compose, initialize_config_dir
 import safeio
 from task import STATE_NAMES
 
-from .config import DynamicsConfig, _digest, _plain, data_hash, ensemble_member, plant_dict
-from .data import CLEARANCE_CAP, Transitions, generate_transitions, load_world, plant_clearance
+from .config import DynamicsConfig, _digest, _plain, data_hash, ensemble_member, plant_dict, world_config
+from .data import CLEARANCE_CAP, Transitions, generate_transitions, plant_clearance
 from .train import (CONFIG_DIR, _errors, _locked, cache_paths, format_errors, load_or_generate_dataset, load_or_train,
                     split_by_trajectory)
 
@@ -81,7 +81,7 @@ def evaluate(cfg: DynamicsConfig, cache_root: str | Path | None = None, world_cf
     for m in members:
         va = np.intersect1d(va, split_by_trajectory(train_ds.traj, m.train.val_fraction, m.train.seed)[1])
     sets = eval_sets(cfg, cache_root, world_cfg)
-    wcfg = load_world(cfg.data, world_cfg)
+    wcfg = world_config(cfg.data, world_cfg)
     w = wcfg.distance_weights
     groups: dict[str, Transitions] = {"source_val": train_ds.subset(va)}
     if "source" in sets:

@@ -44,8 +44,8 @@ from task.threads import torch_threads
 
 from . import data as data_mod
 from .config import (TRAIN_COMMAND, DataConfig, DynamicsConfig, DynamicsError, ModelConfig, TrainConfig,
-                     data_hash, model_hash, single_models)
-from .data import MOVE, POUR, Transitions, load_world
+                     data_hash, model_hash, single_models, world_config)
+from .data import MOVE, POUR, Transitions
 from .ensemble import DynamicsEnsemble
 from .model import SKILLS, LearnedDynamics
 
@@ -80,7 +80,7 @@ def fit(ds: Transitions, model_cfg: ModelConfig | None = None, train_cfg: TrainC
     label); early stopping on the validation loss restores the best epoch.
     ``model.info["training"]`` gets the losses, epochs, wall time and validation errors.
     """
-    wcfg = load_world(DataConfig(), world_cfg)
+    wcfg = world_config(DataConfig(), world_cfg)
     cup = wcfg.controlled_cup
     w = {"pose": 1.0, "volume": 1.0, **dict(wcfg.distance_weights)}
     mc, tc = model_cfg or ModelConfig(), train_cfg or TrainConfig()
@@ -302,7 +302,7 @@ def load_or_train(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_r
             if not ckpt.is_file():
                 ds = load_or_generate_dataset(c, p["root"], generator, progress, world_cfg)
                 model = fit(ds, c.model, c.train, progress=c.progress if progress is None else progress,
-                            world_cfg=load_world(c.data, world_cfg))
+                            world_cfg=world_config(c.data, world_cfg))
                 model.info.update({"model_hash": mh, "data_hash": p["data_hash"], "config": c.to_dict(),
                                    "dataset": {"path": str(p["dataset"]), **ds.summary(),
                                                "generation_wall_seconds": ds.meta.get("wall_seconds")}})

@@ -60,11 +60,42 @@ def test_hash_scopes():
     assert data_hash(c) == dh and model_hash(c) == mh
 
 
-def test_a_setting_added_later_keeps_older_checkpoints_valid_at_its_neutral_value():
-    # session 9's training (before lr_schedule existed): its checkpoint hash, computed by that code
-    then = {"model": {"ensemble": 1},
-            "train": {"max_epochs": 1000, "batch_size": 128, "lr": 2e-3, "lr_schedule": "constant"}}
-    assert model_hash(DynamicsConfig.from_dict(then), "0" * 16) == "438a5d2920de5cbe"
+def test_the_hashes_are_digests_of_every_setting():
+    """Every model and training field, at every value, is part of the model hash; every data field (the focused
+    pours' fields too when there are none) and every solver setting of the world, at every value, of the data hash."""
+    import dataclasses
+
+    from sim.world import DEFAULT_CONFIG
+
+    base = DynamicsConfig()
+    single = base.replace(model=dataclasses.replace(base.model, ensemble=1))
+    assert model_hash(single) != model_hash(base) and data_hash(single) == data_hash(base)
+    constant = base.replace(train=dataclasses.replace(base.train, lr_schedule="constant"))
+    assert model_hash(constant) != model_hash(base)
+    no_pours = base.replace(data=dataclasses.replace(base.data, pour_batches=0))
+    assert data_hash(no_pours.replace(data=dataclasses.replace(no_pours.data, pour_x=(0.2, 0.3)))) != data_hash(no_pours)
+    w = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    for k, v in (("viscosity", 0.001), ("stretch_relax", 0.01), ("boundary_density", False), ("box_normals", "central")):
+        assert data_hash(base, {**w, "sim": {**w["sim"], k: v}}) != data_hash(base), k
+    # the solver's defaults are filled in: a setting spelled out at its default is the same world
+    assert data_hash(base, {**w, "sim": {**w["sim"], "viscosity": 0.0}}) == data_hash(base)
+
+
+def test_another_format_version_is_refused_with_both_versions_and_the_fix(tmp_path):
+    import torch
+
+    from dynamics import LearnedDynamics, Transitions
+    from dynamics.config import DATA_FORMAT_VERSION, MODEL_FORMAT_VERSION
+    from dynamics.train import SHIPPED_DIR
+
+    for pattern, cls, version in (("source-*.pt", Transitions, DATA_FORMAT_VERSION),
+                                  ("model-*.pt", LearnedDynamics, MODEL_FORMAT_VERSION)):
+        payload = torch.load(sorted(SHIPPED_DIR.glob(pattern))[0], weights_only=True)
+        path = tmp_path / pattern.replace("*", "old")
+        torch.save({**payload, "version": version - 1}, path)
+        with pytest.raises(DynamicsError, match=rf"format version {version - 1}, this code reads version {version}; "
+                                                rf"delete .* and (regenerate it|retrain) with `python -m dynamics.train`"):
+            cls.load(path)
 
 
 def test_world_content_is_part_of_the_data_hash(tmp_path):
@@ -115,8 +146,8 @@ def test_the_goal_range_is_not_part_of_the_source_data_identity():
 
 
 def test_the_solver_arch_is_not_part_of_the_data_hash():
-    """A GPU run (world.sim.arch=gpu) uses the shipped, CPU-made data instead of regenerating them
-    (session 20's device run did, for 3 min 18 s, before this); the hash of the CPU world is unchanged."""
+    """A GPU run (world.sim.arch=gpu) uses the shipped, CPU-made data instead of simulating them again: CPU and GPU
+    make the same data within benchmarks.check_arch's tolerances."""
     from sim.world import DEFAULT_CONFIG
 
     c = DynamicsConfig()
@@ -141,22 +172,3 @@ def test_world_given_as_object_or_mapping_overrides_the_file():
     w["skills"]["max_actions"] = 9
     with pytest.raises(DynamicsError, match="not a valid world config"):
         data_hash(c, w)
-
-
-def test_a_solver_setting_at_its_earlier_rule_keeps_the_earlier_data_hash():
-    """sim.box_normals=central is the collider rule before the setting existed (session 7): the default
-    world with it hashes as the default world did then (the data hash of session 6's shipped dataset),
-    so a dataset cached or shipped then stays valid for it; the analytic default is a new dataset."""
-    from sim.world import DEFAULT_CONFIG
-
-    import dataclasses
-
-    w = yaml.safe_load(DEFAULT_CONFIG.read_text())
-    # the default world before session 13 (5 cm of water, moves to x = 0.52, continuous positions)
-    skills = {k: v for k, v in w["skills"].items() if k != "lattice"}
-    w = {**w, "controlled_cup": {**w["controlled_cup"], "fill_height": 0.05},
-         "skills": {**skills, "move": {**skills["move"], "x": [0.10, 0.52]}}}
-    central = {**w, "sim": {**w["sim"], "box_normals": "central"}}
-    then = DynamicsConfig().replace(data=dataclasses.replace(DynamicsConfig().data, n_batches=16, pour_batches=0))  # until session 9 (no focused pours until 28)
-    assert data_hash(then, central) == "8133e0301c47e02e"
-    assert data_hash(then, w) != "8133e0301c47e02e"

@@ -110,18 +110,17 @@ def test_focused_pours_move_next_to_the_target_cup_then_pour(wcfg):
         assert data.start_margin <= sm.obstacles("source", np.zeros(3)).sdf(sm.boundary + start)[0].min()
 
 
-def test_focused_pours_leave_the_random_data_and_its_hash_alone():
-    """pour_batches = 0: the pour fields are in no hash (the shipped data stays valid); > 0: a new data hash, the
-    random batches' shards keep their identity (they are reused), the pour batches have their own."""
+def test_focused_pours_are_a_new_dataset_whose_random_shards_are_reused():
+    """pour_batches > 0: a new data hash; the random batches' shards keep their identity (they are reused), the
+    pour batches have their own."""
     import dataclasses
 
     from dynamics import DynamicsConfig, data_hash
     from dynamics.data import shard_identity
 
     base = DynamicsConfig().replace(data=dataclasses.replace(DynamicsConfig().data, pour_batches=0))
-    off = base.replace(data=dataclasses.replace(base.data, pour_x=(0.2, 0.3)))
     on = base.replace(data=dataclasses.replace(base.data, pour_batches=2))
-    assert data_hash(off) == data_hash(base) != data_hash(on)
+    assert data_hash(on) != data_hash(base)
     w = WorldConfig.load()
     assert shard_identity(on.data, w) == shard_identity(base.data, w) != shard_identity(on.data, w, pours=True)
     with pytest.raises(ValueError, match=r"data.pour_batches = -1: allowed 0..inf"):
