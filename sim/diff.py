@@ -62,11 +62,11 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from .config import ConfigError
-from .diff_mpm import DiffMPM
 from .diff_schedule import (PARAMS, chain_to_params, cup_trajectory, horizon_ticks, production_ticks,
                             substeps_per_tick)
-from .scene import Body, EnvSpec, WaterBlock, sample_water
+from .engine.config import ConfigError
+from .engine.diff_mpm import DiffMPM
+from .engine.scene import Body, EnvSpec, WaterBlock, sample_water
 from .skills import Obstacles, cup_boundary, plan_schedule, pour, start_overlap
 from .world import WorldConfig
 

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .motion import MIN_JERK_PEAK, min_jerk, min_jerk_duration
+from .engine.motion import MIN_JERK_PEAK, min_jerk, min_jerk_duration
 from .world import WorldConfig
 
 #: column order of the (B, 4) parameter arrays of the differentiable pour

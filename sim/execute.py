@@ -21,8 +21,8 @@ import numpy as np
 
 from task import goal_reached, spill
 
-from .mpm import MPMSolver
-from .render import snapshot
+from .engine.mpm import MPMSolver
+from .engine.render import snapshot
 from .skills import Obstacles, Schedule, cup_boundary, plan_schedule, start_overlap, validate_actions
 from .world import CTRL, WorldConfig, check_world
 

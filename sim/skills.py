@@ -22,8 +22,8 @@ from typing import Sequence
 import numpy as np
 from task import on_lattice
 
-from .motion import cos_sin, min_jerk, min_jerk_duration
-from .scene import Body, Shape
+from .engine.motion import cos_sin, min_jerk, min_jerk_duration
+from .engine.scene import Body, Shape
 from .world import WorldConfig
 
 MOVE, POUR = 0, 1

@@ -20,8 +20,8 @@ import yaml
 import configs
 from task import STATE_DIM, WORLDS, check_world, goal_reached, spill, state_distance  # noqa: F401 - the task's one home, re-exported
 
-from .config import ConfigError, SimConfig
-from .scene import Body, EnvSpec, Shape, WaterBlock, open_box
+from .engine.config import ConfigError, SimConfig
+from .engine.scene import Body, EnvSpec, Shape, WaterBlock, open_box
 
 DEFAULT_CONFIG = configs.path("world", "default.yaml")
 CTRL, TARGET, PLANT = 0, 1, 2  # body indices in every environment

@@ -1,4 +1,4 @@
-"""The solver settings come from the world (``world.sim``; the rest are sim.config.SimConfig's defaults)."""
+"""The solver settings come from the world (``world.sim``; the rest are sim.engine.config.SimConfig's defaults)."""
 
 from pathlib import Path
 

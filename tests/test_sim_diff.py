@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from taichi.lang.field import Field
 
-from sim.config import ConfigError
+from sim.engine.config import ConfigError
 from sim.diff import PARAMS, DifferentiablePour, refine_pours
-from sim.diff_mpm import DiffMPM
+from sim.engine.diff_mpm import DiffMPM
 from sim.diff_schedule import production_ticks, tick_poses
 from sim.skills import Obstacles, cup_boundary, plan_schedule, pour
 from sim.world import WorldConfig

@@ -4,9 +4,9 @@ import numpy as np
 from PIL import Image
 
 from benchmarks.validate import CupGeometry, cup_scene
-from sim.config import SimConfig
-from sim.mpm import MPMSolver
-from sim.render import save_gif, save_png, snapshot
+from sim.engine.config import SimConfig
+from sim.engine.mpm import MPMSolver
+from sim.engine.render import save_gif, save_png, snapshot
 
 
 def test_png_and_gif_show_water_and_colliders(tmp_path):

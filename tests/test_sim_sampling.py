@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from sim.config import ConfigError, SimConfig
-from sim.scene import EnvSpec, WaterBlock, sample_water
+from sim.engine.config import ConfigError, SimConfig
+from sim.engine.scene import EnvSpec, WaterBlock, sample_water
 
 
 def _spec():

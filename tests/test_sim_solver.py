@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from benchmarks.validate import CupGeometry, cup_scene
-from sim.config import ConfigError, SimConfig
-from sim.motion import follow, min_jerk
-from sim.mpm import MPMSolver
-from sim.scene import Body, EnvSpec, Shape, WaterBlock, open_box
+from sim.engine.config import ConfigError, SimConfig
+from sim.engine.motion import follow, min_jerk
+from sim.engine.mpm import MPMSolver
+from sim.engine.scene import Body, EnvSpec, Shape, WaterBlock, open_box
 
 CUP = CupGeometry()
 
@@ -315,7 +315,7 @@ def test_split_substep_equals_the_whole_substep_bitwise(monkeypatch):
     threads (particle to grid by row slabs, each thread adding only to its own rows in the same particle
     order): the bits of the one-task-per-environment path, here forced on a small scene, with environments
     frozen and resumed in between (so the split path takes over from the other and back)."""
-    import sim.mpm as mpm
+    import sim.engine.mpm as mpm
 
     runs = []
     for threshold in (10**9, 0):
@@ -376,7 +376,7 @@ def test_unstable_environment_is_flagged_and_reported(caplog):
     v[1, 0] = np.nan
     solver.v.from_numpy(v)
     solver.advance(0.01)
-    with caplog.at_level(logging.WARNING, logger="sim.mpm"):
+    with caplog.at_level(logging.WARNING, logger="sim.engine.mpm"):
         unstable = solver.report_unstable()
     assert unstable.tolist() == [False, True]
     assert "environment 1 went unstable" in caplog.text
@@ -402,7 +402,7 @@ def test_three_dimensional_tank_runs():
 def test_three_dimensional_split_substep_equals_the_whole_substep_bitwise(monkeypatch):
     """The split path (one environment's substep over all threads, the 3D peer benchmark's B = 1 case) gives
     the bits of the one-task path in 3D too."""
-    import sim.mpm as mpm
+    import sim.engine.mpm as mpm
 
     runs = []
     for threshold in (10**9, 0):
