@@ -58,7 +58,7 @@ class ContactAwareDynamics:
 
         A stuck action ends the trajectory in the simulator, so a planner must not extend a plan from
         it. Its pose alone cannot say so: a move stopped within millimetres of its target looks
-        arrived (BENCHMARKS.md, session 12)."""
+        arrived."""
         s, a = np.asarray(states, float), np.asarray(actions, float)
         inner = getattr(self.model, "predict_np", None)
         if inner is None:  # a model with the torch path only

@@ -140,7 +140,7 @@ def _silu_inplace(h: np.ndarray) -> None:
 
 
 #: the same arithmetic as ``_ACT_NP``, in place: the batch path's layers are [M, n, 128] arrays, and
-#: allocating two temporaries per layer cost up to a quarter of its time at n = 256 (session 35)
+#: allocating two temporaries per layer costs up to a quarter of its time at n = 256
 _ACT_NP_INPLACE = {"silu": _silu_inplace, "tanh": lambda h: np.tanh(h, out=h), "relu": lambda h: np.maximum(h, 0.0, out=h)}
 _SWEEP_FRACTIONS = np.linspace(0.0, 1.0, SWEEP_STEPS)
 

@@ -36,40 +36,40 @@ class MDEConfig:
     nu: float = 2.5
     #: Upper bound of every ARD lengthscale (mean and noise GP), in standard deviations of that
     #: input over the GP's training points; None: unbounded. Keeps the log-noise GP from smoothing
-    #: over a whole input's range (BENCHMARKS.md, session 15).
+    #: over a whole input's range (BENCHMARKS.md, admission: what an MDE admits).
     lengthscale_max: float | None = None
     #: The same bound for the log-noise GP alone (None: ``lengthscale_max``). Why: a noise GP that
     #: smooths over the whole pour region puts the scatter of its spills on the safe pours between
-    #: them, while a mean GP bounded as tightly interpolates its data (BENCHMARKS.md, session 18).
+    #: them, while a mean GP bounded as tightly interpolates its data.
     noise_lengthscale_max: float | None = None
     #: Lower bound of the mean GP's latent std far from its data, in label units (an outputscale
     #: bound of ``(latent_std_min / label std)^2``); None: unbounded. Why: the labels are z-scored,
     #: so a GP that has seen only small deviations (or fits an outputscale near 0) predicts a narrow
     #: std wherever it has no data, and its precondition then admits transitions it knows nothing
-    #: about (BENCHMARKS.md, sessions 16-17). With ``latent_std_min >= d_max / 2`` an unvisited
+    #: about. With ``latent_std_min >= d_max / 2`` an unvisited
     #: transition fails ``mu + 2 sigma < d_max`` as it does before any data.
     latent_std_min: float | None = None
     #: Upper bound of the same latent std, label units (outputscale <= ``(latent_std_max / label std)^2``);
     #: None: unbounded. Why: a maximum-likelihood fit on labels of a small spread (mostly clean pours, few at
     #: ``label_max``) picks a z-scored outputscale 2-3x that of one whose data include failures, and its
-    #: uncertainty then grows faster away from its own pours (BENCHMARKS.md, session 37).
+    #: uncertainty then grows faster away from its own pours.
     latent_std_max: float | None = None
     #: Labels above this (label units) are fitted as this value; None: as they are. Why: the
     #: precondition only asks whether mu + beta sigma < d_max, so every deviation well above d_max
     #: is equally "not admitted", while a few whole spills (pour labels up to ~2, against an admitted
     #: bulk below 0.07) dominate the z-scoring and push the GP either to interpolate them with tiny
-    #: noise or to call every pour noise (BENCHMARKS.md, session 18). Must stay well above d_max.
+    #: noise or to call every pour noise (BENCHMARKS.md, ceiling: which MDE and plant model). Must stay
+    #: well above d_max.
     label_max: float | None = None
     #: Hyperparameter priors of every GP (mean and log-noise): "none" (maximum likelihood) or "gamma"
     #: (BoTorch's SingleTaskGP defaults until 0.12, current when the paper was written: lengthscale
     #: Gamma(3, 6) in the kernel's input units, outputscale Gamma(2, 0.15), noise Gamma(1.1, 0.05);
     #: the fit is then MAP). Why: free fits on the MDE's data go to lengthscales of tens of metres or
-    #: an outputscale near 0 (BENCHMARKS.md, sessions 15-17 and 22); a prior keeps them in range
-    #: softly, where ``lengthscale_max`` cuts them off. "lognormal": BoTorch's defaults since 0.12
-    #: (Hvarfner et al. 2024): lengthscale / input range ~ LogNormal(sqrt 2 + log(d) / 2, sqrt 3), noise
-    #: LogNormal(-4, 1) on z-scored labels; against the small-data fits whose noise goes to the floor or
-    #: whose lengthscale goes to 0 (BENCHMARKS.md, sessions 32 and 39); the default since session 41, when it had
-    #: lifted the quick experiment significantly (session 40).
+    #: an outputscale near 0; a prior keeps them in range softly, where ``lengthscale_max`` cuts them
+    #: off. "lognormal" (the default): BoTorch's defaults since 0.12 (Hvarfner et al. 2024): lengthscale /
+    #: input range ~ LogNormal(sqrt 2 + log(d) / 2, sqrt 3), noise LogNormal(-4, 1) on z-scored labels; it keeps
+    #: small-data fits off the optima where the noise goes to the floor or a lengthscale to 0, and lifts the
+    #: quick experiment significantly (BENCHMARKS.md, ceiling and experiment: BoTorch's hyperparameter priors).
     hyperparameter_priors: str = "lognormal"
     #: Most-likely heteroscedastic GP (True, the paper's) or a homoscedastic GP (False: one noise level; with
     #: ``label_max`` the pouring task's default, configs/mde/default.yaml).

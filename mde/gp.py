@@ -395,7 +395,7 @@ def _kernel(nu: float, d: int, X_t: Tensor, lengthscale_max: float | None = None
     lengthscale (GPyTorch ``Interval``; a constant input's std counts as 1), starting at half the
     bound. Why: on simulator data the log-noise GP's marginal likelihood prefers a lengthscale in
     the cup's height longer than the whole move range, which smears the noise of pours that hit a
-    leaf over the safe pours 3 cm below (BENCHMARKS.md, session 15).
+    leaf over the safe pours 3 cm below.
     ``priors="gamma"``: BoTorch's SingleTaskGP default priors before 0.12, the library the paper
     used (``botorch.models.utils.gpytorch_modules.get_matern_kernel_with_gamma_prior``):
     lengthscale Gamma(3, 6) in the kernel's input units (mode 1/3), outputscale Gamma(2, 0.15).

@@ -5,7 +5,7 @@ The pouring task's action is (skill, p1, p2): p1, p2 are a move's target (x, y) 
 in metres and an angle in radians, and lets moves inform pours; its pour predictions then barely
 generalise (measured on 128 target-world trajectories, held out by trajectory: one GP admits 19 %
 of the pours whose true deviation is under d_max, one GP per skill 65 %, neither admits a bad
-one; BENCHMARKS.md). Groups are independent: a row's prediction depends only on its own group's
+one). Groups are independent: a row's prediction depends only on its own group's
 data; a group without data predicts the prior (mean 0, std ``prior_std``), "unknown".
 """
 

@@ -38,8 +38,8 @@ def on_lattice(xy: Any, lattice: float) -> np.ndarray:
 
     A world's ``skills.lattice`` puts every cup position (problem starts here, move targets in
     ``sim.skills.plan_schedule``) on the solver's grid phase, so a pouring lip always sits on the grid
-    the same way: a diagnostic world without the sub-cell term of a pour's scatter (BENCHMARKS.md,
-    session 9)."""
+    the same way: a world without the sub-cell term of a pour's scatter (std 0.017-0.026 over 32 offsets
+    within one cell, a solver artefact no real cup has)."""
     xy = np.asarray(xy, float)
     return xy if not lattice else np.round(xy / lattice) * lattice
 

@@ -173,13 +173,13 @@ def test_documented_overrides_arrive():
     assert settings(["planner.goal_bias=0.1"])[2].goal_bias == 0.1  # configs/planner/default.yaml
     assert settings(["planner.stuck_move=0.01"])[2].stuck_move == 0.01  # README: known static geometry
     assert settings(["experiment.plan_goal_tol=0.02"])[2].goal_tol == 0.02  # BENCHMARKS: ladder rungs
-    pc = settings([])[2]  # the default aims at the band's middle with a spill margin (session 42)
+    pc = settings([])[2]  # the default aims at the band's middle with a spill margin
     assert (pc.goal_tol, pc.accept_tol, pc.spill_limit) == (0.025, 0.05, 0.012)
     world_aim = ["experiment.plan_goal_tol=null", "experiment.plan_accept_tol=null", "experiment.plan_spill_limit=null"]
-    pc = settings(world_aim)[2]  # README: the planner of sessions 1-41, the world's band and limit
+    pc = settings(world_aim)[2]  # README: the band-edge planner, the world's band and limit
     assert (pc.goal_tol, pc.accept_tol, pc.spill_limit) == (0.05, None, 0.02)
-    assert settings(["experiment.plan_spill_limit=0.01"])[2].spill_limit == 0.01  # BENCHMARKS: session 17
-    pc = settings(["experiment.plan_goal_tol=0.02", "experiment.plan_accept_tol=0.05"])[2]  # BENCHMARKS: session 21
+    assert settings(["experiment.plan_spill_limit=0.01"])[2].spill_limit == 0.01  # BENCHMARKS: the planner's aim
+    pc = settings(["experiment.plan_goal_tol=0.02", "experiment.plan_accept_tol=0.05"])[2]  # BENCHMARKS: the aim
     assert (pc.goal_tol, pc.accept_tol) == (0.02, 0.05)
     with pytest.raises(ValueError, match=r"experiment.plan_accept_tol = 0.06: allowed \(0, 0.05\]"):
         settings(["experiment.plan_accept_tol=0.06"])
@@ -188,7 +188,7 @@ def test_documented_overrides_arrive():
     leaf = settings(["world.plant.leaves.0.center=[0.045,0.26]"])[1].plant["leaves"][0]  # README: a higher leaf
     assert list(leaf["center"]) == [0.045, 0.26] and list(leaf["radii"]) == [0.045, 0.007]
     leaf = settings(["world.plant.leaves.0.center=[0.065,0.22]", "world.plant.leaves.0.radii=[0.065,0.007]"]
-                    )[1].plant["leaves"][0]  # README: the leaf before session 28
+                    )[1].plant["leaves"][0]  # README: the longer leaf, over 60 % of the mouth
     assert list(leaf["center"]) == [0.065, 0.22] and list(leaf["radii"]) == [0.065, 0.007]
     with pytest.raises(ValueError, match=r"experiment.plan_spill_limit = 0.03: allowed \[0, 0.02\]"):
         settings(["experiment.plan_spill_limit=0.03"])
@@ -227,18 +227,19 @@ def test_the_state_box_must_contain_the_action_ranges():
 
 
 # ------------------------------------------------------------------ the problems
-def test_problems_are_the_worlds_and_bit_identical_to_before():
-    """The experiment's problems did not change when the sampler moved to task.problems (same draws)."""
+def test_problems_are_the_worlds_and_pinned():
+    """The experiment's problems are ``task.sample_problems``' draws (``sim.problems`` names the same function),
+    pinned, on and off the world's lattice."""
     from sim.problems import sample_problems as via_sim
     from task import sample_problems
 
     assert via_sim is sample_problems
-    old_goals = "world.problems.goal=[0.3,0.8]"  # the default goal range of the pinned draws (until session 29)
-    cfg = compose_config(["world.skills.lattice=0", old_goals])  # continuous positions: the draws themselves
+    pinned_goals = "world.problems.goal=[0.3,0.8]"  # the goal range of the pinned draws
+    cfg = compose_config(["world.skills.lattice=0", pinned_goals])  # continuous positions: the draws themselves
     _, world, _, _ = run_settings(cfg)
     a, b = sample_problems(world, 2, 123), sample_problems(cfg["world"], 2, np.random.default_rng(123))
-    # the default world (session 13) puts the same draws on its 1 cm lattice
-    on = sample_problems(run_settings(compose_config([old_goals]))[1], 2, 123)
+    # the default world puts the same draws on its 1 cm lattice
+    on = sample_problems(run_settings(compose_config([pinned_goals]))[1], 2, 123)
     for p, q in zip(a, on):
         np.testing.assert_allclose(q.start[:2], np.round(p.start[:2] / 0.01) * 0.01, rtol=0, atol=1e-12)
         np.testing.assert_array_equal(p.plant_jitter, q.plant_jitter)

@@ -55,10 +55,10 @@ def test_first_shard_regenerates_bit_for_bit():
     """Batch 0 of the shipped dataset, simulated again on this CPU, is identical to the shipped rows: what
     the data sampler decides (actions, trajectories, steps, stuck flags) on any machine; the simulated
     states on a CPU with the vector instruction sets of the machine that made the file
-    (``sim.backend.cpu_fingerprint``). Session 18 found states made with Taichi's fast math and numpy's
-    vectorised trigonometry moving by a few particles in half of the trajectories on another CPU; since
-    session 19 neither is used, which should make the states portable, but no second CPU type has
-    confirmed it, so the comparison still needs the same fingerprint."""
+    (``sim.backend.cpu_fingerprint``). States made with Taichi's fast math or numpy's vectorised
+    trigonometry move by a few particles in half of the trajectories on another CPU; the simulator uses
+    neither, which should make the states portable, but the comparison stays within one fingerprint
+    until CPU types are shown to agree."""
     from sim.backend import cpu_fingerprint
 
     c, dh = _default()

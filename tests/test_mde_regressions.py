@@ -12,8 +12,8 @@ DATA = Path(__file__).parent / "data" / "mde_abnormal_line_search.pt"
 
 
 def test_fit_survives_abnormal_line_search_stops():
-    """On these 60 transitions L-BFGS-B stops with an "ABNORMAL" line search; that used to count as
-    a failed fit and left the MDE at its prior."""
+    """On these 60 transitions L-BFGS-B stops with an "ABNORMAL" line search; the iterate it returns is a
+    usable fit, not a failed one that would leave the MDE at its prior."""
     d = torch.load(DATA)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -58,14 +58,14 @@ def _explicit_gp_latent_var(model, Xq):
 
 
 def test_predict_matches_an_explicit_posterior_on_simulator_features():
-    """With the float32 fast path, these transitions gave a noise GP mean of +0.49 (log variance)
-    where the GP interpolates -1.28 at a training point, and lost the latent variance entirely, so
-    ``predict`` (the planner's precondition) and the acquisitions disagreed by up to 0.68 in variance.
-    The default is float64 now.
+    """With the float32 fast path, these transitions give a noise GP mean of +0.49 (log variance)
+    where the GP interpolates -1.28 at a training point, and lose the latent variance entirely, so
+    ``predict`` (the planner's precondition) and the acquisitions disagree by up to 0.68 in variance:
+    hence the float64 default.
 
     The fit here puts lengthscales of 1e-11 to 1e-8 on 0/1 features (which ones, and how small, depends on
     the CPU's floating point: AVX-512 machines land on 1e-11); GPyTorch's own distance then loses the
-    other features to cancellation (noise GP mean -6.55 at query 0, session 13's failure; on AVX-512 a
+    other features to cancellation (noise GP mean -6.55 at query 0 on some CPUs; on AVX-512 a
     latent variance of 1e-5 where the explicit computation gives 9e-4). So ``predict`` and the BoTorch view the
     acquisitions read (``marginal_model``) are checked against explicit float64 differences, not against
     GPyTorch's posterior, and the noise cache against the same reference."""
@@ -167,7 +167,7 @@ def test_the_ungrouped_mde_gives_acquisitions_the_same_factorisation():
 
 @pytest.mark.parametrize("case", ["noise_floor", "lengthscale_zero"])
 def test_lognormal_priors_keep_small_data_fits_off_the_degenerate_optima(case):
-    """Two move GPs of the paper protocol's first round (session 38's active_admission, seeds 3 and 1; the default
+    """Two move GPs of the paper protocol's first round (active_admission, seeds 3 and 1; the default
     MDE, homoscedastic on labels capped at 0.1). Maximum likelihood puts the first's noise on the floor (1e-4 of
     the label variance: the GP interpolates 24 moves, and far from them the std is the outputscale's) and one
     lengthscale of the second at ~1e-7 of its input's range (a bad move explained by an odd volume fraction):

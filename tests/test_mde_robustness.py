@@ -214,7 +214,7 @@ def test_yaml_lists_exactly_the_dataclass_fields_with_its_defaults():
     assert raw.pop("_target_") == "mde.GroupedMDE"
     assert set(raw) == {f.name for f in fields(MDEConfig)}
     # the library's defaults (the paper's GP), except that the task groups by the action's skill (one GP per skill)
-    # and, since session 33, fits one noise level per skill on labels capped at 0.1 (configs/mde/default.yaml)
+    # and fits one noise level per skill on labels capped at 0.1 (configs/mde/default.yaml)
     assert MDEConfig.from_yaml(path) == MDEConfig(group_column=5, heteroscedastic=False, label_max=0.1)
 
 

@@ -173,7 +173,7 @@ def test_a_centred_aim_falls_back_to_the_most_centred_plan_of_the_wide_band(toy)
         if wide_only.found:
             err = [abs(p.trajectory.final_state[4] - GOAL) for p in (aimed, wide_only)]
             assert err[0] <= err[1]
-    # an aim that is reached ends the search as before
+    # an aim that is reached ends the search (solved), as a plan without an aim does
     hit = planner.plan(START, GOAL, tol=0.05, beta=BETA, d_max=D_MAX, seed=0)
     assert hit.found and hit.stats.termination == "solved"
     with pytest.raises(ValueError, match="accept_tol"):

@@ -150,7 +150,7 @@ def test_a_lattice_puts_starts_and_move_targets_on_it(cfg):
 
     from sim.skills import Obstacles, cup_boundary, plan_schedule
 
-    assert cfg.skills["lattice"] == 0.01  # the default world's (session 13)
+    assert cfg.skills["lattice"] == 0.01  # the default world's
     lat, cfg = cfg, dataclasses.replace(cfg, skills={**cfg.skills, "lattice": 0.0})
     free = sample_problems(cfg, 6, seed=3)
     snapped = sample_problems(lat, 6, seed=3)
@@ -173,7 +173,7 @@ def test_plant_on_contact_hold_blocks_only_that_action(cfg):
 
     from sim.skills import Obstacles, cup_boundary, plan_schedule
 
-    assert cfg.plant_on_contact == "stuck"  # the default (session 33): schedules as "stop"
+    assert cfg.plant_on_contact == "stuck"  # the default: schedules as "stop"
     hold = dataclasses.replace(cfg, plant={**cfg.plant, "on_contact": "hold"})
     obst = Obstacles(cfg.obstacle_bodies("target"), np.full(2, 0.03), np.full(2, 0.57))
     start, acts = np.array([0.42, 0.24, 0.0]), np.array([move(0.15, 0.24), move(0.42, 0.24), pour(0.5, 0.2)])
