@@ -39,6 +39,7 @@ from hydra.utils import instantiate  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 import configs  # noqa: E402
+from configs.schema import check_config  # noqa: E402
 from planner import ActionSampler  # noqa: E402
 from planner.pool import PlanPool  # noqa: E402
 from sim.execute import PouringExecutor  # noqa: E402
@@ -137,6 +138,7 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
 
 def prepare_run(cfg: Mapping[str, Any], out: Path) -> RunSpec:
     """Validate everything before any compute and before touching the output directory."""
+    check_config(cfg)  # every leaf's type, finiteness, range and choices, named by its full path (configs.schema)
     runner, seeds, single, cfg = run_layout(cfg)
     seed_dirs = {s: out for s in seeds} if single else {s: out / f"seed{s}" for s in seeds}
     exp, world, planner_cfg, workers = run_settings(cfg)
