@@ -22,7 +22,7 @@ from sim.world import WorldConfig
 from task.problems import sample_problems
 
 from .identity import RUN_FORMAT_VERSION, config_differences, config_digest
-from .io import RunFileError, as_json, load_torch, save_torch
+from .io import RunFileError, as_json, load_checked, save_checked
 from .labels import label_transitions, stack_steps
 from .seeds import derive_seed
 
@@ -71,7 +71,7 @@ def load_calibration(path: Path, cfg: Mapping[str, Any]) -> dict | None:
         return None
     fix = (f"delete it and run the same command again: it is rebuilt from the configuration (the same set for the "
            f"same configuration); results, checkpoints and datasets in {path.parent} are kept")
-    data = load_torch(path, fix=fix)
+    data = load_checked(path, fix=fix)
     if not (isinstance(data, dict) and data.get("format") == CALIBRATION_FORMAT and "X" in data and "y" in data):
         raise RunFileError(f"{path} is not a calibration set of this runner; {fix}")
     if data.get("version") == RUN_FORMAT_VERSION and data.get("digest") == config_digest(cfg):
@@ -84,6 +84,6 @@ def load_calibration(path: Path, cfg: Mapping[str, Any]) -> dict | None:
 
 def save_calibration(path: Path, cal: Mapping[str, Any], cfg: Mapping[str, Any]) -> dict:
     """Write the calibration set tagged with the configuration that made it; returns its X and y."""
-    save_torch(path, {"format": CALIBRATION_FORMAT, "version": RUN_FORMAT_VERSION, "digest": config_digest(cfg),
+    save_checked(path, {"format": CALIBRATION_FORMAT, "version": RUN_FORMAT_VERSION, "digest": config_digest(cfg),
                       "config": as_json(cfg), "X": cal["X"], "y": cal["y"]})
     return {"X": cal["X"], "y": cal["y"]}

@@ -8,6 +8,7 @@ instead of a raw unpickling or zip-reader error.
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 from pathlib import Path
@@ -40,8 +41,20 @@ def write_csv(path: Path, rows: Sequence[Mapping[str, Any]], fields: Sequence[st
 
 
 def read_csv(path: Path) -> list[dict[str, str]]:
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
+    """The rows of a CSV this code wrote; a file that is not one (undecodable bytes, a row cut short or with extra
+    fields) is a :class:`RunFileError` naming the file and the line, never rows silently lost or shifted."""
+    path = Path(path)
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            reader = csv.DictReader(f)
+            rows = list(reader)
+    except (UnicodeDecodeError, csv.Error) as e:
+        raise RunFileError(f"{path} is not a readable CSV ({type(e).__name__}: {str(e)[:160]})") from None
+    for k, row in enumerate(rows):
+        if None in row or None in row.values():
+            raise RunFileError(f"{path} line {k + 2} has {'more' if None in row else 'fewer'} fields than its header "
+                               f"({len(reader.fieldnames or [])}): the file is truncated or damaged")
+    return rows
 
 
 def save_torch(path: Path, obj: Any) -> None:
@@ -59,6 +72,48 @@ def load_torch(path: Path, fix: str = "delete it and run the same command again"
         return torch.load(path, weights_only=False, map_location="cpu")
     except Exception as e:  # noqa: BLE001 - every reader failure means the same thing: unusable file
         raise RunFileError(f"{path} is unreadable ({describe_load_error(e)}); {fix}") from None
+
+
+CHECKED_FORMAT = "active-mde/checked-torch"
+
+
+def save_checked(path: Path, obj: Any) -> str:
+    """Write ``obj`` (``torch.save``) with the sha256 of its bytes inside the same file, atomically; returns the
+    digest. torch does not check its zip's CRC-32, so damage inside a tensor's bytes would load silently; a
+    checked file refuses it (:func:`load_checked`)."""
+    import torch
+
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    data = buf.getvalue()
+    digest = hashlib.sha256(data).hexdigest()
+    safeio.save_torch(path, {"format": CHECKED_FORMAT, "sha256": digest, "data": data})
+    return digest
+
+
+def load_checked(path: Path, fix: str = "delete it and run the same command again") -> Any:
+    """Read a file of :func:`save_checked`, verifying its checksum; any failure names the file and says ``fix``."""
+    import torch
+
+    wrapper = load_torch(path, fix)
+    if not (isinstance(wrapper, dict) and wrapper.get("format") == CHECKED_FORMAT and "data" in wrapper):
+        raise RunFileError(f"{path} is not a checksummed file of this code (written by another run format?); {fix}")
+    data = wrapper["data"]
+    if hashlib.sha256(data).hexdigest() != wrapper.get("sha256"):
+        raise RunFileError(f"{path} is damaged (its content does not match the checksum stored with it); {fix}")
+    try:
+        return torch.load(io.BytesIO(data), weights_only=False, map_location="cpu")
+    except Exception as e:  # noqa: BLE001
+        raise RunFileError(f"{path} is unreadable ({describe_load_error(e)}); {fix}") from None
+
+
+def file_sha256(path: Path) -> str:
+    """The sha256 of a file's bytes (recorded for files another module writes, e.g. MDE checkpoints)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def describe_load_error(e: BaseException) -> str:

@@ -38,12 +38,12 @@ from task.problems import Problem, sample_problems
 from .calibration import CALIBRATION_FIELDS, calibration_row
 from .experiment import ExperimentConfig
 from .identity import RUN_FORMAT, RUN_FORMAT_VERSION, config_digest
-from .io import load_torch, save_torch, write_csv
+from .io import file_sha256, save_checked, save_torch, write_csv
 from .labels import label_transitions, stack_steps
 from .methods import Choice, RandomPlan, build_method
 from .needs import OUTCOME_FIELDS, PlanNeed, SimNeed, execute_needs, problem_outcomes
 from .refine import refine_plans
-from .rundir import check_state_format, load_mde_checkpoint, state_fix
+from .rundir import check_checkpoint, load_mde_checkpoint, load_state
 from .seeds import derive_seed
 from .tracking import Tracker
 
@@ -112,14 +112,15 @@ class MethodRun:
 
     # ------------------------------------------------------------------ persistence
     def _resume(self, path: Path) -> None:
-        st = load_torch(path, fix=state_fix(path))
-        check_state_format(st, path)
+        st = load_state(path)
         if st["digest"] != self.state["digest"]:
             raise RuntimeError(f"{path} was written by a run with a different configuration; use a new output "
                                f"directory (hydra.run.dir=...) or delete {self.dir} to restart this method")
         self.state = st
         if st["mde_path"]:
+            check_checkpoint(self.dir / st["mde_path"], st.get("mde_sha256"), path)
             self.mde = load_mde_checkpoint(type(self.mde), self.dir / st["mde_path"], self.mde, st["X"], path)
+        self._write_derived()  # the CSVs and dataset.pt from the state: a damaged or edited one is restored
         log.info("%s: resuming after iteration %d", self.method, st["completed"])
 
     def _save(self, iteration: int) -> None:
@@ -127,8 +128,14 @@ class MethodRun:
         if getattr(self.mde, "is_fitted", False):
             mde_name = f"mde_iter{iteration:03d}.pt"
             self.mde.save(self.dir / mde_name)
+            self.state["mde_sha256"] = file_sha256(self.dir / mde_name)
         self.state["mde_path"] = mde_name
         self.state["completed"] = iteration
+        self._write_derived()
+        save_checked(self.dir / "state.pt", self.state)  # last: it marks the iteration as complete
+
+    def _write_derived(self) -> None:
+        """The files derived from the state (the source of truth): the CSVs and ``dataset.pt``."""
         save_torch(self.dir / "dataset.pt", {"X": self.state["X"], "y": self.state["y"],
                                              "feature_names": list(FEATURE_NAMES)})
         fields = RESULT_FIELDS + (["test_success_refined"] if self.ctx.exp.refine_steps else [])
@@ -136,7 +143,6 @@ class MethodRun:
         write_csv(self.dir / "categories.csv", self.state["categories"], CATEGORY_FIELDS)
         write_csv(self.dir / "calibration.csv", self.state["calibration"], CALIBRATION_FIELDS)
         write_csv(self.dir / "tests.csv", self.state["tests"], TEST_FIELDS)
-        save_torch(self.dir / "state.pt", self.state)  # last: it marks the iteration as complete
 
     # ------------------------------------------------------------------ the loop
     @property

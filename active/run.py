@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import sys
 import time
 import warnings
 from dataclasses import dataclass
@@ -40,6 +41,7 @@ from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 import configs  # noqa: E402
 from configs.schema import check_config  # noqa: E402
+import safeio  # noqa: E402
 from planner import ActionSampler  # noqa: E402
 from planner.pool import PlanPool  # noqa: E402
 from sim.execute import PouringExecutor  # noqa: E402
@@ -59,7 +61,7 @@ from .planner_setup import build_planner_config, planner_workers, planning_dynam
 from .preflight import check_dynamics, check_geometry, check_seed, check_writable  # noqa: E402
 from .report import report  # noqa: E402
 from .rundir import check_run_directory, clean_leftovers  # noqa: E402
-from .runlock import RunLock  # noqa: E402
+from .runlock import RunDirectoryError, RunLock  # noqa: E402
 from .seeds import derive_seed  # noqa: E402
 from .tracking import Tracker  # noqa: E402
 
@@ -95,7 +97,8 @@ class RunSpec:
         return {**self.cfg, "seed": s}
 
 
-def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
+def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path,
+                   on_accept: Callable[[Path], None] | None = None) -> dict:
     """Run (or resume) every method of ``cfg`` into ``out_dir``; returns the report summary.
 
     ``runner``: ``sequential`` runs the methods one after another; ``lockstep`` advances all of them
@@ -108,13 +111,16 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path) -> dict:
     Order matters: every check runs before any compute (config values, the resolution against the
     geometry, the output and cache locations' writability); then each directory is locked (one
     writer per run directory) and what it holds is checked against its config; ``config.json`` is
-    written only once the directory is accepted.
+    written only once the directory is accepted, and so are the files ``on_accept(out_dir)`` writes (the
+    Hydra entry point's ``.hydra/`` record).
     """
     t0 = time.perf_counter()
     out = Path(out_dir)
     spec = prepare_run(cfg, out)
     with contextlib.ExitStack() as stack:
         calibrations = accept_directories(spec, stack)
+        if on_accept is not None:
+            on_accept(out)
         torch.manual_seed(spec.seeds[0])
         log.info("dynamics model: loading from cache or training (source world only)")
         dyn = planning_dynamics(spec.cfg["dynamics"], spec.cfg["world"], spec.world, spec.exp, spec.progress)
@@ -278,10 +284,19 @@ def seed_dir(seed: Any, seeds: Any) -> str:
     return f"seed{seed}" if seeds is None else "seeds" + "-".join(str(s) for s in seeds)
 
 
+def run_subdir(overrides: str, method: Any, seed: Any, seeds: Any) -> str:
+    """The run directory below the experiment's folder (the ``run_subdir`` resolver): the result-changing overrides
+    (``hydra.job.override_dirname``; no level when there are none), the method, the seed: ``all/seed0``,
+    ``mde.label_max=0.15/all/seed0``."""
+    return "/".join(part for part in (overrides, str(method), seed_dir(seed, seeds)) if part)
+
+
 def register_resolvers() -> None:
     """The config's own interpolations (idempotent)."""
     if not OmegaConf.has_resolver("seed_dir"):
         OmegaConf.register_new_resolver("seed_dir", seed_dir)
+    if not OmegaConf.has_resolver("run_subdir"):
+        OmegaConf.register_new_resolver("run_subdir", run_subdir)
 
 
 def compose_config(overrides: list[str] | None = None) -> dict:
@@ -294,14 +309,63 @@ def compose_config(overrides: list[str] | None = None) -> dict:
     return OmegaConf.to_container(OmegaConf.create(plain), resolve=True)
 
 
+def headline(made: Mapping[str, Any]) -> float | None:
+    """The run's headline metric, what a Hydra sweeper (Optuna, Ax) optimises: the best method's area under the
+    test-success curve (mean over seeds), or None before any iteration completed."""
+    aucs = [row["auc_success"] for row in made.get("summary", [])]
+    return float(max(aucs)) if aucs else None
+
+
+def hydra_record(cfg: DictConfig) -> Callable[[Path], None]:
+    """A writer of Hydra's record of the job (``.hydra/config.yaml``, ``overrides.yaml``, ``hydra.yaml``; the config
+    sets ``hydra.output_subdir: null`` so that Hydra does not write them when it starts) that also opens the job's
+    ``run.log`` (``hydra/job_logging: console`` has no file handler), called once the run directory is accepted: a
+    refused run leaves the accepted run's record and log as they were."""
+
+    def write(out: Path) -> None:
+        hc = HydraConfig.get()
+        record = out / ".hydra"
+        record.mkdir(parents=True, exist_ok=True)
+        safeio.write_text(record / "hydra.yaml", OmegaConf.to_yaml({"hydra": hc}))
+        safeio.write_text(record / "overrides.yaml", OmegaConf.to_yaml(list(hc.overrides.task)))
+        safeio.write_text(record / "config.yaml", OmegaConf.to_yaml(cfg))
+        log_file = logging.FileHandler(out / "run.log")
+        log_file.setFormatter(logging.Formatter("[%(asctime)s][%(name)s][%(levelname)s] - %(message)s"))
+        logging.getLogger().addHandler(log_file)
+
+    return write
+
+
+def hydra_run_dir(argv: list[str]) -> Path | None:
+    """The run directory ``python -m active.run <argv>`` will write (None for a multirun or a bad override: Hydra
+    reports those itself), composed as Hydra will, so that it is checked before Hydra creates it."""
+    if any(a in ("-m", "--multirun") or a.startswith("--") for a in argv):
+        return None
+    register_resolvers()
+    try:
+        with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+            cfg = compose(config_name="config", overrides=list(argv), return_hydra_config=True)
+        return Path(str(cfg.hydra.run.dir))
+    except Exception:  # noqa: BLE001 - Hydra's own error messages for bad overrides are the right ones
+        return None
+
+
 def _hydra_main() -> None:
     register_resolvers()
+    run_dir = hydra_run_dir(sys.argv[1:])
+    if run_dir is not None:
+        try:
+            check_writable([run_dir])
+        except RunDirectoryError as e:  # before Hydra creates the folder (its error would be a raw traceback)
+            print(f"active.run: {e}", file=sys.stderr)
+            raise SystemExit(2) from None
 
     @hydra.main(config_path=str(CONFIG_DIR), config_name="config", version_base="1.3")
-    def main(cfg: DictConfig) -> None:
+    def main(cfg: DictConfig) -> float | None:
         warnings.filterwarnings("ignore", category=DeprecationWarning)
         plain = OmegaConf.to_container(cfg, resolve=True)
-        run_experiment(plain, HydraConfig.get().runtime.output_dir)
+        made = run_experiment(plain, HydraConfig.get().runtime.output_dir, on_accept=hydra_record(cfg))
+        return headline(made)
 
     main()
 

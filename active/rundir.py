@@ -21,7 +21,7 @@ import torch
 import safeio
 
 from .identity import RUN_FORMAT, RUN_FORMAT_VERSION, config_differences, config_digest
-from .io import RunFileError, describe_load_error, load_torch
+from .io import CHECKED_FORMAT, RunFileError, describe_load_error, file_sha256, load_checked, load_torch
 from .runlock import RunDirectoryError
 
 log = logging.getLogger(__name__)
@@ -55,6 +55,16 @@ def state_fix(path: Path) -> str:
             f"them elsewhere first to keep them)")
 
 
+def load_state(path: Path) -> dict:
+    """A method's ``state.pt``: checksum verified, run format version checked (errors name the file, what survives
+    and what to do)."""
+    fix = state_fix(path)
+    raw = load_torch(path, fix=fix)
+    st = load_checked(path, fix) if isinstance(raw, dict) and raw.get("format") == CHECKED_FORMAT else raw
+    check_state_format(st, path)
+    return st
+
+
 def check_state_format(st: Any, path: Path) -> None:
     """Refuse a ``state.pt`` of another run format version, naming both versions and how to rerun."""
     if not isinstance(st, dict) or "digest" not in st or "completed" not in st:
@@ -71,22 +81,25 @@ def check_run_directory(out: Path, cfg: Mapping[str, Any]) -> bool:
     """Refuse, before any compute, a directory holding results of another configuration or run format.
 
     Reads every ``*/state.pt`` (errors name the file and what survives), checks its format version,
-    its digest and that its MDE checkpoint is readable. Returns whether any method has resumable
+    its digest, that it holds no more iterations than ``experiment.iterations`` (a shorter run is no
+    rewrite of a longer one) and that its MDE checkpoint is readable. Returns whether any method has resumable
     state. Leftovers of a run of another configuration that never completed an iteration are not
     results: such a directory is accepted (the calibration set is checked on its own).
     """
     recorded = read_recorded_config(out)
     digest = config_digest(cfg)
-    mismatched, resumable = [], False
+    iterations = int(cfg.get("experiment", {}).get("iterations", 0))
+    mismatched, longer, resumable = [], [], False
     for state_path in sorted(out.glob("*/state.pt")):
-        st = load_torch(state_path, fix=state_fix(state_path))
-        check_state_format(st, state_path)
+        st = load_state(state_path)
         if st["digest"] != digest:
             mismatched.append(f"{state_path.parent.name} ({st['completed']} iterations)")
             continue
         resumable = True
+        if st["completed"] > iterations > 0:
+            longer.append(f"{state_path.parent.name} ({st['completed']} iterations)")
         if st.get("mde_path"):
-            _check_readable_checkpoint(state_path.parent / st["mde_path"], state_path)
+            check_checkpoint(state_path.parent / st["mde_path"], st.get("mde_sha256"), state_path)
     diffs = config_differences(recorded, cfg)
     if mismatched:
         what = (f"it differs in {'; '.join(diffs)}" if diffs else
@@ -95,24 +108,28 @@ def check_run_directory(out: Path, cfg: Mapping[str, Any]) -> bool:
             f"{out} holds results of a different configuration ({', '.join(mismatched)}): {what}. Nothing was "
             f"changed. Resume it with its own configuration (see {out / 'config.json'}), or write this run to a new "
             f"directory (hydra.run.dir=...); to discard those results, delete {out}.")
+    if longer:
+        raise RunDirectoryError(
+            f"experiment.iterations = {iterations}: {out} holds more completed iterations ({', '.join(longer)}). "
+            f"Nothing was changed. Allowed: at least as many iterations as it holds, or a new directory "
+            f"(hydra.run.dir=...)")
     if diffs and not resumable:
         log.warning("%s was started with another configuration (%s) but completed no iteration: starting afresh",
                     out, "; ".join(diffs))
     return resumable
 
 
-def _check_readable_checkpoint(path: Path, state_path: Path) -> None:
-    """Cheap pre-compute check that a checkpoint named by state.pt exists and unpickles."""
+def check_checkpoint(path: Path, sha256: str | None, state_path: Path) -> None:
+    """Cheap pre-compute check that the MDE checkpoint named by ``state.pt`` exists and has the bytes it had when
+    the state was saved (``state.pt`` records its sha256: damage inside a tensor would otherwise load silently)."""
     fix = (f"it is the MDE of the last completed iteration, named by {state_path}. Restore it from a backup, or "
            f"delete {state_path} and run the same command again to redo this method from iteration 1 "
            f"({', '.join(METHOD_FILES[:5])} beside it are intact but are rewritten then: copy them elsewhere first "
            f"to keep them)")
     if not path.is_file():
         raise RunFileError(f"{path} is missing; {fix}")
-    try:
-        torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # noqa: BLE001
-        raise RunFileError(f"{path} is unreadable ({describe_load_error(e)}); {fix}") from None
+    if file_sha256(path) != sha256:
+        raise RunFileError(f"{path} is damaged (its bytes do not match the checksum {state_path} recorded); {fix}")
 
 
 def load_mde_checkpoint(mde_cls: Any, path: Path, expected: Any, X: Any, state_path: Path) -> Any:

@@ -16,7 +16,7 @@ import torch
 
 import safeio
 from active.experiment import ExperimentConfig
-from active.io import RunFileError, read_csv, write_csv
+from active.io import RunFileError, load_checked, read_csv, write_csv
 from active.identity import RUN_FORMAT_VERSION, config_digest
 from active.loop import TIMING_FIELDS
 from active.run import compose_config, run_experiment
@@ -86,12 +86,12 @@ def test_end_to_end_tiny_run_writes_everything(straight_run):
 
 @pytest.fixture(scope="module")
 def wheel_python(tmp_path_factory) -> str:
-    """The interpreter of a fresh virtual environment with the project installed from a built wheel
-    (the dependencies come from this interpreter's site)."""
+    """An interpreter that imports the project from a built wheel (installed into a folder of its own) and its
+    dependencies from this interpreter's environment."""
     import tomllib
 
     if os.name != "posix":
-        pytest.skip("the venv's interpreter path is POSIX-style here")
+        pytest.skip("the wheel's interpreter is a POSIX shell script here")
     root = tmp_path_factory.mktemp("wheel")
     src, wheels, venv = (root / d for d in ("src", "wheels", "venv"))
     src.mkdir()
@@ -104,10 +104,17 @@ def wheel_python(tmp_path_factory) -> str:
     quiet = dict(check=True, capture_output=True, text=True)
     subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w",
                     str(wheels), str(src)], cwd=src, **quiet)
-    subprocess.run([sys.executable, "-m", "venv", "--without-pip", "--system-site-packages", str(venv)], **quiet)
-    py = str(venv / "bin" / "python")
-    subprocess.run([py, "-m", "pip", "install", "-q", "--no-deps", *map(str, wheels.glob("*.whl"))], **quiet)
-    return py
+    # the wheel into a folder of its own, ahead of everything else on the path of this very interpreter: the
+    # dependencies are this environment's (a virtual environment, a conda environment or the system
+    # interpreter), the project's packages the wheel's (a venv made from here would see the base interpreter's)
+    site = venv / "site-packages"
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(site),
+                    *map(str, wheels.glob("*.whl"))], **quiet)
+    py = venv / "bin" / "python"
+    py.parent.mkdir(parents=True)
+    py.write_text(f'#!/bin/sh\nPYTHONPATH="{site}" exec "{sys.executable}" "$@"\n')
+    py.chmod(0o755)
+    return str(py)
 
 
 def _wheel_env() -> dict:
@@ -386,8 +393,8 @@ def test_model_alone_is_measured_once_and_rebuilt_for_another_config(cache, stra
 
 
 @pytest.mark.parametrize("name,damage,match", [
-    ("active_balanced/mde_iter002.pt", "truncate", r"mde_iter002.pt is unreadable \(truncated or damaged"),
-    ("random_actions/mde_iter002.pt", "garbage", r"mde_iter002.pt is unreadable \(not a torch file"),
+    ("active_balanced/mde_iter002.pt", "truncate", r"mde_iter002.pt is damaged \(its bytes do not match the checksum"),
+    ("random_actions/mde_iter002.pt", "garbage", r"mde_iter002.pt is damaged .*redo this method from iteration 1"),
     ("calibration_set.pt", "truncate", r"calibration_set.pt is unreadable .*it is rebuilt from the configuration"),
     ("random_actions/state.pt", "garbage", r"state.pt is unreadable .*results.csv, tests.csv beside it are intact and kept"),
 ])
@@ -430,7 +437,7 @@ def test_stale_calibration_set_of_another_seed_is_not_reused(cache, straight_run
     cfg = compose_config(tiny_overrides(cache) + ["seed=1", "runner=sequential"])
     run_experiment(cfg, out)
     assert made == [1] and all(float(c["y"][0]) == 1.0 for c in seen)
-    saved = torch.load(out / "calibration_set.pt", weights_only=False)
+    saved = load_checked(out / "calibration_set.pt")
     assert saved["digest"] == config_digest(cfg) and float(saved["y"][0]) == 1.0
     assert json.loads((out / "config.json").read_text())["seed"] == 1
 
@@ -454,8 +461,8 @@ def test_state_of_another_run_format_is_refused_naming_both_versions(cache, stra
     and how to rerun in the message; nothing in it changes."""
     out = _copy_run(straight_run[0], tmp_path / "run")
     state_path = out / "active_balanced" / "state.pt"
-    st = torch.load(state_path, weights_only=False)
-    del st["format"], st["version"]  # as the first run format wrote it
+    st = load_checked(state_path)
+    del st["format"], st["version"]  # as the first run format wrote it: a plain torch file without them
     safeio.save_torch(state_path, st)
     before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
     with pytest.raises(RunFileError, match=rf"run format version 1; this code reads version {RUN_FORMAT_VERSION}"
@@ -547,3 +554,77 @@ def test_model_plan_fallback_replaces_refused_rounds_by_plans_of_the_model_alone
     assert need is None and out is choices
     with pytest.raises(ValueError, match=r"experiment.fallback = 'plans': allowed one of \('random_actions', 'model_plan'\)"):
         ExperimentConfig(fallback="plans").validate()
+
+
+def test_a_refused_cli_run_leaves_the_hydra_record_and_config_as_they_were(cache, straight_run, tmp_path):
+    """Hydra's own record (.hydra/) is written only once a run directory is accepted: a refused rerun (another
+    seed into a finished run's folder) exits non-zero and changes no file of the folder."""
+    out = _copy_run(straight_run[0], tmp_path / "run")
+    (out / ".hydra").mkdir()
+    (out / ".hydra" / "config.yaml").write_text("the accepted run's record\n")
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    cmd = [sys.executable, "-m", "active.run", *tiny_overrides(cache), "seed=1", f"hydra.run.dir={out}"]
+    done = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert done.returncode != 0 and "holds results of a different configuration" in done.stderr
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+
+
+@pytest.mark.parametrize("kind", ["file", "unwritable"])
+def test_a_bad_run_directory_gets_the_projects_message_before_hydra_starts(tmp_path, kind):
+    """An existing file, or a folder that cannot be written, named as hydra.run.dir: the project's message naming
+    the folder and the field, exit code 2, not Hydra's FileExistsError / PermissionError traceback."""
+    if kind == "file":
+        target = tmp_path / "a-file"
+        target.write_text("x")
+    else:
+        if os.geteuid() == 0:
+            pytest.skip("root writes into a read-only folder; the file case covers the same path")
+        parent = tmp_path / "ro"
+        parent.mkdir(mode=0o500)
+        target = parent / "run"
+    cmd = [sys.executable, "-m", "active.run", "experiment=tiny", "wandb.mode=disabled", f"hydra.run.dir={target}"]
+    done = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2, done.stderr[-2000:]
+    assert f"output directory {target} is not writable" in done.stderr and "hydra.run.dir=" in done.stderr
+    assert "Traceback" not in done.stderr
+
+
+def test_run_folders_carry_the_result_changing_overrides():
+    """An ablation or a sweep over any key gets its own folder; seed, method and how a run is carried out do not
+    make a level; the default run stays at outputs/quick/all/seed0."""
+    from active.run import hydra_run_dir
+
+    assert hydra_run_dir([]) == Path("outputs/quick/all/seed0")
+    assert hydra_run_dir(["mde.label_max=0.15", "seed=3", "planner.workers=2", "progress=false"]) == \
+        Path("outputs/quick/mde.label_max=0.15/all/seed3")
+    assert hydra_run_dir(["experiment=paper", "seeds=[0,1]", "method=random_plan"]) == \
+        Path("outputs/paper/random_plan/seeds0-1")
+    assert hydra_run_dir(["-m", "seed=0,1"]) is None  # a sweep's folders are Hydra's (sweep.subdir, the same parts)
+
+
+def test_the_headline_metric_is_the_best_methods_area(straight_run):
+    from active.run import headline
+
+    _, made = straight_run
+    best = max(r["auc_success"] for r in made["summary"])
+    assert headline(made) == best and headline({"summary": []}) is None
+
+
+def test_derived_files_are_rewritten_from_the_state_and_a_damaged_checkpoint_is_refused(cache, straight_run, tmp_path):
+    """The state is the source of truth: a rerun of a finished run rewrites a truncated or edited results.csv from
+    it (the report then reads the true rows); a checkpoint whose bytes changed is refused before any compute,
+    naming the file, although torch would load it."""
+    out = _copy_run(straight_run[0], tmp_path / "run")
+    results = out / "random_actions" / "results.csv"
+    results.write_bytes(results.read_bytes()[:-20])
+    rows = (out / "active_balanced" / "results.csv").read_text().splitlines()
+    (out / "active_balanced" / "results.csv").write_text("\n".join(rows[:1] + [rows[1].replace("0.", "9.", 1)] + rows[2:]))
+    run_experiment(compose_config(tiny_overrides(cache)), out)
+    for method in ("active_balanced", "random_actions"):
+        assert read_csv(out / method / "results.csv") == read_csv(straight_run[0] / method / "results.csv")
+    ckpt = out / "active_balanced" / "mde_iter002.pt"
+    raw = bytearray(ckpt.read_bytes())
+    raw[len(raw) // 2: len(raw) // 2 + 64] = bytes(64)
+    ckpt.write_bytes(bytes(raw))
+    with pytest.raises(RunFileError, match=rf"{ckpt} is damaged"):
+        run_experiment(compose_config(tiny_overrides(cache)), out)

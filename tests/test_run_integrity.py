@@ -23,7 +23,7 @@ import torch
 
 import safeio
 from active import runlock
-from active.io import RunFileError, load_torch
+from active.io import RunFileError, load_checked, load_torch, read_csv, save_checked
 from active.preflight import check_geometry, check_seed, check_writable, max_dx
 from active.calibration import CALIBRATION_FORMAT, load_calibration, save_calibration
 from active.identity import RUN_FORMAT, RUN_FORMAT_VERSION, config_differences, config_digest
@@ -214,8 +214,8 @@ def test_digests_ignore_the_cache_location():
 
 def _write_state(folder: Path, digest: str, completed: int = 1) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
-    safeio.save_torch(folder / "state.pt", {"format": RUN_FORMAT, "version": RUN_FORMAT_VERSION, "digest": digest,
-                                            "completed": completed, "mde_path": None})
+    save_checked(folder / "state.pt", {"format": RUN_FORMAT, "version": RUN_FORMAT_VERSION, "digest": digest,
+                                       "completed": completed, "mde_path": None})
     for name in ("results.csv", "categories.csv", "dataset.pt"):
         (folder / name).write_text("x")
     return folder / "state.pt"
@@ -231,6 +231,19 @@ def test_directory_of_another_configuration_is_refused_with_the_differences(tmp_
         check_run_directory(tmp_path, _cfg(seed=1))
     assert (tmp_path / "config.json").read_bytes() == before
     assert check_run_directory(tmp_path, _cfg(dynamics={"cache_root": "/moved"}))  # resumable
+
+
+def test_fewer_iterations_than_a_directory_holds_are_refused(tmp_path):
+    """experiment.iterations lowered on a finished run: refused naming the field, nothing rewritten."""
+    cfg = _cfg()  # 2 iterations
+    safeio.write_json(tmp_path / "config.json", cfg)
+    _write_state(tmp_path / "a", config_digest(cfg), completed=2)
+    assert check_run_directory(tmp_path, cfg)
+    before = (tmp_path / "config.json").read_bytes()
+    with pytest.raises(RunDirectoryError, match=r"experiment.iterations = 1: .* holds more completed iterations "
+                                                r"\(a \(2 iterations\)\)\. Nothing was changed"):
+        check_run_directory(tmp_path, _cfg(experiment={"iterations": 1}))
+    assert (tmp_path / "config.json").read_bytes() == before
 
 
 def test_damaged_state_names_the_file_and_what_survives(tmp_path):
@@ -257,16 +270,45 @@ def test_calibration_set_is_reused_only_for_its_own_configuration(tmp_path, capl
     with caplog.at_level(logging.WARNING):  # a seed-0 set left by a run killed before its first iteration
         assert load_calibration(path, seed1) is None
     assert "made by another configuration or run format (seed: 0 -> 1); rebuilding it" in caplog.text
-    saved = torch.load(path, weights_only=False)
+    saved = load_checked(path)
     assert saved["format"] == CALIBRATION_FORMAT and saved["digest"] == config_digest(seed0)
     assert saved["version"] == RUN_FORMAT_VERSION
     # another run format version: rebuilt, never reused
-    safeio.save_torch(path, {**saved, "version": RUN_FORMAT_VERSION - 1})
+    save_checked(path, {**saved, "version": RUN_FORMAT_VERSION - 1})
     assert load_calibration(path, seed0) is None
-    for bad in ({"X": torch.zeros(2, 8), "y": torch.full((2,), 5.0)}, [1, 2]):  # untagged, or not a set at all
-        safeio.save_torch(path, bad)
-        with pytest.raises(RunFileError, match="is not a calibration set of this runner"):
-            load_calibration(path, seed1)
+    save_checked(path, [1, 2])  # checksummed, but not a set
+    with pytest.raises(RunFileError, match="is not a calibration set of this runner"):
+        load_calibration(path, seed1)
+    safeio.save_torch(path, {"X": torch.zeros(2, 8), "y": torch.full((2,), 5.0)})  # no checksum: another format
+    with pytest.raises(RunFileError, match="is not a checksummed file of this code"):
+        load_calibration(path, seed1)
+
+
+def test_damage_inside_a_tensor_is_refused_naming_the_file(tmp_path):
+    """torch does not check its zip's CRC-32: 8 bytes changed inside a tensor load silently from a plain file. A
+    checked file (state, calibration set) refuses them, naming the file and the fix."""
+    path = tmp_path / "calibration_set.pt"
+    save_calibration(path, {"X": torch.arange(4096.0).reshape(512, 8), "y": torch.zeros(512)}, _cfg())
+    raw = bytearray(path.read_bytes())
+    at = raw.find(torch.arange(4096.0)[1000:1002].numpy().tobytes())  # inside X's storage
+    assert at > 0
+    raw[at:at + 8] = b"\x00" * 8
+    path.write_bytes(bytes(raw))
+    with pytest.raises(RunFileError, match=rf"{path} is damaged .*delete it and run the same command again"):
+        load_calibration(path, _cfg())
+
+
+@pytest.mark.parametrize("damage, why", [
+    (lambda b: b[: len(b) - 7], "fewer fields than its header"),
+    (lambda b: b + b"1,2,3,4,5,6,7,8,9,10,11,12\n", "more fields than its header"),
+    (lambda b: b.replace(b"method", b"m\xffethod", 1), "is not a readable CSV")])
+def test_a_damaged_csv_is_refused_naming_the_file_and_line(tmp_path, damage, why):
+    path = tmp_path / "results.csv"
+    path.write_bytes(b"method,seed,iteration\nrandom_plan,0,1\nrandom_plan,0,2\n")
+    assert len(read_csv(path)) == 2
+    path.write_bytes(damage(path.read_bytes()))
+    with pytest.raises(RunFileError, match=rf"{path}.*{why}"):
+        read_csv(path)
 
 
 @pytest.mark.parametrize("damage", ["truncate", "garbage"])
@@ -282,12 +324,12 @@ def test_damaged_calibration_set_names_the_file_and_the_fix(tmp_path, damage):
 
 @pytest.fixture(scope="module")
 def fitted_mde(tmp_path_factory):
-    from mde import HeteroscedasticGPMDE
+    from mde import GPMDE
 
     g = torch.Generator().manual_seed(0)
     X = torch.rand(12, 3, generator=g, dtype=torch.float64)
     y = 0.1 + 0.05 * X[:, 0]
-    mde = HeteroscedasticGPMDE(num_threads=1, max_iters=1, heteroscedastic=False).fit(X, y)
+    mde = GPMDE(num_threads=1, max_iters=1, heteroscedastic=False).fit(X, y)
     path = mde.save(tmp_path_factory.mktemp("mde") / "mde_iter001.pt")
     return mde, path, X
 
@@ -295,25 +337,25 @@ def fitted_mde(tmp_path_factory):
 @pytest.mark.parametrize("damage,reason", [("truncate", "truncated or damaged"),
                                            ("garbage", "not a torch file written by this code")])
 def test_damaged_mde_checkpoint_names_the_file(tmp_path, fitted_mde, damage, reason):
-    from mde import HeteroscedasticGPMDE
+    from mde import GPMDE
 
     mde, good, X = fitted_mde
     path = tmp_path / "mde_iter002.pt"
     path.write_bytes(good.read_bytes()[:300] if damage == "truncate" else b"garbage" * 40)
     with pytest.raises(RunFileError, match=rf"MDE checkpoint {path} is unreadable \({reason}") as e:
-        load_mde_checkpoint(HeteroscedasticGPMDE, path, mde, X, tmp_path / "state.pt")
+        load_mde_checkpoint(GPMDE, path, mde, X, tmp_path / "state.pt")
     assert "weights_only" not in str(e.value) and "delete" in str(e.value)
 
 
 def test_mde_checkpoint_must_belong_to_the_state(fitted_mde, tmp_path):
-    from mde import HeteroscedasticGPMDE
+    from mde import GPMDE
 
     mde, path, X = fitted_mde
-    assert load_mde_checkpoint(HeteroscedasticGPMDE, path, mde, X, tmp_path / "state.pt").n_train == 12
+    assert load_mde_checkpoint(GPMDE, path, mde, X, tmp_path / "state.pt").n_train == 12
     with pytest.raises(RunFileError, match="another MDE configuration"):
-        load_mde_checkpoint(HeteroscedasticGPMDE, path, HeteroscedasticGPMDE(nu=1.5), X, tmp_path / "state.pt")
+        load_mde_checkpoint(GPMDE, path, GPMDE(nu=1.5), X, tmp_path / "state.pt")
     with pytest.raises(RunFileError, match="fitted on data that is not this method's saved data"):
-        load_mde_checkpoint(HeteroscedasticGPMDE, path, mde, X + 1, tmp_path / "state.pt")
+        load_mde_checkpoint(GPMDE, path, mde, X + 1, tmp_path / "state.pt")
 
 
 def test_load_torch_names_the_file(tmp_path):
