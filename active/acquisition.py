@@ -119,8 +119,8 @@ class TrajectoryThompson(TrajectoryAcquisition):
     posterior over the trajectory's steps, minimised like the paper's alpha (the candidate whose draw is best runs).
 
     Why: alpha selects on the MDE's point estimate, so it executes the pours the MDE is most wrongly confident about
-    (the optimiser's curse; on this world the active methods' MDEs then refuse good partial pours, BENCHMARKS.md
-    session 37); a posterior draw picks each candidate about as often as it is probably the best. Each trajectory's
+    (the optimiser's curse; on this world the active methods' MDEs then refuse good partial pours, BENCHMARKS.md,
+    admission); a posterior draw picks each candidate about as often as it is probably the best. Each trajectory's
     draw is seeded by its features and ``seed``, so a run is reproducible and a candidate's score does not depend
     on which others it is scored with.
     """

@@ -59,7 +59,7 @@ class ExperimentConfig:
     #: "random_actions" (a random-action sequence, marked "fallback") or "model_plan" (a plan of the
     #: model alone, no MDE, marked "fallback_plan"; random actions only if that finds nothing either).
     #: Why the second: random actions mostly end in the plant, and a round with no admitted candidate then
-    #: adds large labels instead of data where plans go (BENCHMARKS.md, session 22)
+    #: adds large labels instead of data where plans go (BENCHMARKS.md, plan errors)
     fallback: str = "random_actions"
 
     @classmethod

@@ -19,8 +19,8 @@ dynamics model (the same config composition as ``python -m active.run``, overrid
     python -m active.ladder --out outputs/ladder_stretch +world.sim.stretch_relax=0.02
     python -m active.ladder --out DIR --rungs source_model_only ceiling experiment.plan_goal_tol=0.02
     python -m active.ladder --out DIR --rungs source_model_only target_model_only --model-seeds 0 1 2
-    python -m active.ladder --out DIR --rungs ceiling --ceiling-data benchmarks/results/ceiling_train_s15_512.npz \
-        --ceiling-trajectories 256 -- experiment.planner_propagation_budget=30000   # a saved set, or part of it
+    python -m active.ladder --out DIR --rungs ceiling --ceiling-data data/ceiling_sets/stuck_seed0.npz \
+        --ceiling-trajectories 64 -- experiment.planner_propagation_budget=30000   # a saved set, or part of it
     python -m active.ladder --out DIR --rungs ceiling --ceiling-seeds 0 1 2      # three training sets: mean, range
 
 Writes ``DIR/ladder.json`` (atomically, after each rung, so a killed run keeps the rungs it finished)
@@ -81,7 +81,7 @@ def reproducibility(world, executor, thetas: Sequence[float], hold: float, n: in
     pour positions within one grid cell (:func:`subcell_offsets`; same start).
 
     (c) is the scatter a model of (x, y, ...) sees between neighbouring training pours: the walls and the
-    pouring lip sit on the grid differently at each offset (BENCHMARKS.md, session 6)."""
+    pouring lip sit on the grid differently at each offset (BENCHMARKS.md, the measurable-effect ladder)."""
     starts = np.array([p.start[:3] for p in sample_problems(world, n, seed, world="source")])
     offsets = subcell_offsets(n, float(world.sim["dx"]))
     start = np.array([[0.42, 0.20, 0.0]] * n)
@@ -200,10 +200,13 @@ def ceiling_dataset(world, pool, exp, executor, n_train: int, seed: int, batch: 
 def check_ceiling_data(path: Path, on_contact: str) -> None:
     """Refuse a saved ceiling set made under another ``world.plant.on_contact``: a set made with ``stop`` lacks
     the stuck records that ``stuck`` adds (s' = s for each action a caught cup never made), so its MDE would
-    silently be another one. Files saved before session 33 record nothing and are taken as they are."""
+    silently be another one. A set that does not record it is refused too (remake it with this command)."""
     with np.load(path) as f:
         made = str(f["plant_on_contact"]) if "plant_on_contact" in f.files else None
-    if made is not None and made != on_contact:
+    if made is None:
+        raise ValueError(f"--ceiling-data {path}: records no world.plant.on_contact (not a ceiling set of this code); "
+                         f"remake it: python -m active.ladder --out DIR --rungs ceiling")
+    if made != on_contact:
         raise ValueError(f"--ceiling-data {path}: made with world.plant.on_contact={made}, but the run has "
                          f"world.plant.on_contact={on_contact}; pass world.plant.on_contact={made} or use a set made "
                          f"with {on_contact}")
@@ -308,13 +311,13 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
     ``model_seeds``: the model-only rungs are measured with a dynamics model trained with each of these
     seeds (``dynamics.train.seed``; each cached by its config hash) on the same data and problems, and
     report the mean over the models with each model's figures (``per_model_seed``): one training draw
-    moves the source rung by up to 0.4 (BENCHMARKS.md, session 7). The ceiling uses the first model.
+    moves the source rung by up to 0.4 (BENCHMARKS.md, the measurable-effect ladder). The ceiling uses the first model.
     None: the config's model only.
 
     ``ceiling_seeds``: the ceiling is measured once per seed, each with its own training set and test
     problems (saved to ``DIR/ceiling_train_seed<s>.npz``, or read from the matching ``ceiling_data``
     file), and reports the mean, the range and each set's record (``per_seed``): one training set moves
-    the ceiling from 0.00 to 0.60 (BENCHMARKS.md, session 15). None: the config's seed only."""
+    the ceiling from 0.00 to 0.60 (BENCHMARKS.md, the measurable-effect ladder). None: the config's seed only."""
     unknown = sorted(set(rungs) - set(RUNGS))
     if unknown:
         raise ValueError(f"--rungs {unknown}: allowed any of {list(RUNGS)}")
@@ -462,7 +465,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--rungs", nargs="+", default=list(RUNGS), help=f"which rungs (default all: {' '.join(RUNGS)})")
     ap.add_argument("--thetas", type=float, nargs="+", default=[1.15, 1.25],
                     help="pour angles of the reproducibility rung, on the steep part of the default world's "
-                         "outcome curve (0.30 and 0.49 of the water; 1.35 / 1.45 before session 13's fuller cup)")
+                         "outcome curve (0.30 and 0.49 of the water)")
     ap.add_argument("--hold", type=float, default=0.5, help="hold time of the reproducibility pours, s")
     ap.add_argument("--slots", type=int, default=32, help="environment slots / approaches per reproducibility pour")
     ap.add_argument("--problems", type=int, default=30, help="problems per planning rung")

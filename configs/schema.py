@@ -42,7 +42,6 @@ OMPL_LOG_LEVELS = ("none", "error", "warn", "info", "debug")  # planner.config._
 FALLBACKS = ("random_actions", "model_plan")  # active.experiment.ALLOWED_FALLBACKS
 RUNNERS = ("sequential", "lockstep")  # active.run.RUNNERS
 WANDB_MODES = ("offline", "online", "disabled")  # active.run.WANDB_MODES
-DEVICES = ("cpu", "cuda")  # configs/config.yaml: the torch device (cpu | cuda)
 #: seeds feed numpy's SeedSequence and torch.manual_seed (active.preflight.MAX_SEED)
 MAX_SEED = 2**32 - 1
 #: actions per plan or trajectory: the world's skills.max_actions allows 1..6 (sim.world.WorldConfig.validate)
@@ -618,7 +617,6 @@ class RunConfig(Group):
                      Rule(f"{_SEEDS_ALLOWED}", ge=0, le=MAX_SEED, integer=True), _say(Rule(_SEEDS_ALLOWED), True),
                      AfterValidator(_seeds_unique)] = None
     runner: one_of(*RUNNERS) = None
-    device: one_of(*DEVICES) = None
     progress: flag() = None
 
     @model_validator(mode="after")

@@ -166,7 +166,7 @@ def test_ceiling_seeds_and_files_are_checked_before_compute(tmp_path):
 
 def test_a_saved_ceiling_set_made_under_another_plant_contact_is_refused(tmp_path):
     """A set made with ``world.plant.on_contact=stop`` lacks the records ``stuck`` adds: refused before any compute,
-    naming both settings; a set that records nothing (saved before session 33) is taken as it is."""
+    naming both settings; a set that records nothing is refused too."""
     from pathlib import Path
 
     import numpy as np
@@ -179,6 +179,7 @@ def test_a_saved_ceiling_set_made_under_another_plant_contact_is_refused(tmp_pat
         main(["--out", str(tmp_path / "x"), "--rungs", "ceiling", "--ceiling-data", str(stop_set)])
     assert not (tmp_path / "x").exists()
     check_ceiling_data(stop_set, "stop")
-    legacy = tmp_path / "legacy.npz"
-    np.savez(legacy, category=np.array(["other"]))
-    check_ceiling_data(legacy, "stuck")
+    untagged = tmp_path / "untagged.npz"
+    np.savez(untagged, category=np.array(["other"]))
+    with pytest.raises(ValueError, match=r"records no world.plant.on_contact .*remake it"):
+        check_ceiling_data(untagged, "stuck")
