@@ -13,8 +13,9 @@ from __future__ import annotations
 from typing import Mapping, TypeVar
 
 import numpy as np
-import torch
 from torch import Tensor
+
+from .problems import WORLDS, Problem, check_world, on_lattice, sample_problems  # noqa: F401 - re-exported
 
 STATE_DIM = 5
 ACTION_DIM = 3
@@ -79,6 +80,3 @@ def state_distance(s_i: np.ndarray, s_j: np.ndarray, weights: Mapping[str, float
     pose = np.linalg.norm(a[..., :3] - b[..., :3], axis=-1)
     vol = np.abs(a[..., 3] - b[..., 3]) + np.abs(a[..., 4] - b[..., 4])
     return w["pose"] * pose + w["volume"] * vol
-
-
-from .problems import WORLDS, Problem, check_world, on_lattice, sample_problems  # noqa: E402 - after the names it may use

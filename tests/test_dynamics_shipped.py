@@ -10,7 +10,7 @@ import pytest
 
 import dynamics.shipped as shipped
 from dynamics import train as train_mod
-from dynamics.config import DynamicsConfig, single_models
+from dynamics.config import single_models
 from dynamics.data import Transitions, generate_transitions
 from dynamics.train import cache_paths, load_or_generate_dataset
 from tests.doubles.synthetic import synthetic_generator
