@@ -21,7 +21,7 @@ import torch
 from torch import Tensor
 
 # -- layout constants and the task's tests: one home, the leaf package ``task`` -------------------
-from task import (  # noqa: E402,F401 - re-exported: the planner's public names
+from task import (  # noqa: F401 - re-exported: the planner's public names
     ACTION_DIM,
     DEFAULT_SPILL_LIMIT,
     FEATURE_DIM,
