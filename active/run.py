@@ -217,7 +217,8 @@ def run_methods(spec: RunSpec, contexts: dict[int, Context], pool: PlanPool, exe
     def start(s: int, method: str) -> MethodRun:
         tracker = Tracker(spec.wandb.get("mode", "offline"), spec.wandb.get("project", "active-mde"),
                           f"{exp.name}-{method}-seed{s}", spec.seed_cfg(s), spec.seed_dirs[s],
-                          entity=spec.wandb.get("entity"), group=f"{exp.name}-seed{s}")
+                          entity=spec.wandb.get("entity"), group=f"{exp.name}-{method}",
+                          run_id=f"{config_digest(spec.seed_cfg(s))}-{method}-seed{s}")
         return MethodRun(contexts[s], method, spec.make_mde, spec.make_acq, tracker)
 
     def report_seed(s: int, runs: list[MethodRun]) -> dict:

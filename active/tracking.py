@@ -2,7 +2,10 @@
 
 ``mode`` is ``offline`` by default (runs sync later with ``wandb sync``), ``online`` to stream, and
 ``disabled`` for tests. Any W&B failure is logged once as a warning and logging turns itself off.
-Each (method, seed) is its own W&B run; the lockstep runner keeps several open at once (``reinit="create_new"``).
+Each (method, seed) is its own W&B run, grouped by experiment and method, whose id is derived from the run's
+config digest: a killed run started again resumes the same W&B run (``resume="allow"``), so its curve
+continues instead of starting a second, partial one. The lockstep runner keeps several open at once
+(``reinit="create_new"``, wandb >= 0.19.10).
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ MODES = ("offline", "online", "disabled")
 
 class Tracker:
     def __init__(self, mode: str, project: str, run_name: str, config: Mapping[str, Any], out_dir: Path,
-                 entity: str | None = None, group: str | None = None) -> None:
+                 entity: str | None = None, group: str | None = None, run_id: str | None = None) -> None:
         if mode not in MODES:
             raise ValueError(f"wandb.mode = {mode!r}: allowed one of {MODES}")
         self.run = None
@@ -30,6 +33,7 @@ class Tracker:
             os.environ.setdefault("WANDB_SILENT", "true")
             self._wandb = wandb
             self.run = wandb.init(mode=mode, project=project, entity=entity, group=group, name=run_name,
+                                  id=run_id, resume="allow" if run_id else None,
                                   config=dict(config), dir=str(out_dir), reinit="create_new",
                                   settings=wandb.Settings(console="off", x_disable_stats=True))
         except Exception as e:  # a broken W&B must not stop the experiment
