@@ -107,7 +107,7 @@ class ExperimentConfig:
         if self.plan_goal_tol is not None and not 0 < self.plan_goal_tol <= 1:
             raise ValueError(f"experiment.plan_goal_tol = {self.plan_goal_tol!r}: allowed null or a fraction in (0, 1] "
                              f"(at most world.problems.tolerance)")
-        # against the goal band and the world's tolerance: active.loop.build_planner_config
+        # against the goal band and the world's tolerance: active.planner_setup.build_planner_config
         if self.plan_accept_tol is not None and not 0 < self.plan_accept_tol <= 1:
             raise ValueError(f"experiment.plan_accept_tol = {self.plan_accept_tol!r}: allowed null or a fraction in "
                              f"(0, 1] (from the planner's goal band to world.problems.tolerance)")

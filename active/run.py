@@ -351,7 +351,8 @@ def hydra_run_dir(argv: list[str]) -> Path | None:
         return None
 
 
-def _hydra_main() -> None:
+def cli() -> None:
+    """``active-mde`` / ``python -m active.run``: the Hydra entry point (overrides on the command line)."""
     register_resolvers()
     run_dir = hydra_run_dir(sys.argv[1:])
     if run_dir is not None:
@@ -372,4 +373,4 @@ def _hydra_main() -> None:
 
 
 if __name__ == "__main__":
-    _hydra_main()
+    cli()

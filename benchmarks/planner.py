@@ -32,7 +32,8 @@ import torch
 
 from benchmarks._cli import report
 from planner.config import PlannerConfig
-from planner.rrt import Planner, _Evaluator, torch_threads
+from planner.rrt import Planner, _Evaluator
+from task.threads import torch_threads
 from task.problems import sample_problems
 from tests.doubles.standins import StandInGPMDE, StandInMLPDynamics, synthetic_deviation_dataset
 

@@ -131,7 +131,7 @@ def test_a_built_wheel_finds_its_configs_and_shipped_files_outside_the_repositor
     work.mkdir()
     quiet = dict(check=True, capture_output=True, text=True, env=_wheel_env(), cwd=work)
     venv = str(Path(wheel_python).parents[1])
-    where = subprocess.run([wheel_python, "-c", "import active, configs, dynamics.shipped as s; print(active.__file__); "
+    where = subprocess.run([wheel_python, "-c", "import active, configs, dynamics.train as s; print(active.__file__); "
                             "print(configs.CONFIG_DIR); print(s.SHIPPED_DIR)"], **quiet).stdout.split()
     assert len(where) == 3 and all(w.startswith(venv) for w in where), where  # the wheel, not the checkout
     shipped = sorted(p.name for p in Path(where[2]).glob("*.pt"))

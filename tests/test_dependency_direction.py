@@ -20,9 +20,9 @@ ALLOWED = {
     "task": set(),
     "safeio": set(),
     "sim": {"safeio", "task", "configs"},
-    "mde": {"safeio"},
+    "mde": {"safeio", "task"},
     "planner": {"safeio", "task"},
-    "dynamics": {"safeio", "task", "sim", "planner", "configs"},
+    "dynamics": {"safeio", "task", "sim", "configs"},
     "active": OURS,
 }
 
