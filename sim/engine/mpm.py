@@ -19,52 +19,46 @@ inflowing normal part, and the tangential part keeps slipping with Coulomb frict
 (0 = free slip, the usual choice when the viscous boundary layer is far below the grid spacing).
 A particle that still ends a substep inside a collider is projected to its surface along the SDF
 gradient with the same velocity rule, so thin container walls (>= 2 cells) do not leak.
+
+The transfers, the grid update and the collider query are Taichi functions shared with the
+differentiable solver (``sim.engine.stencil``, ``sim.engine.colliders``); this module schedules them.
 """
 
 
 import logging
-import math
 from typing import Sequence
 
 import numpy as np
 import taichi as ti
 
 from .backend import init_taichi
+from .colliders import Colliders, to_frame
 from .config import ConfigError, SimConfig
-from .motion import cos_sin
-from .physics import affine_momentum, box_sdf, bspline_weights, ghost_mass, separate, update_volume_ratio
-from .scene import SHAPE_KINDS, EnvSpec, sample_water
+from .scene import EnvSpec, sample_water
+from .stencil import Stencil
 
 log = logging.getLogger(__name__)
 
-_WALL = -1  # closest-feature index for the tank walls
 #: CPU: particles per environment above which fewer environments than threads run split over the threads
 #: (``MPMSolver.step``: each environment's particle-to-grid split into row slabs, one per thread). On 2 cores the
 #: split substep ran 1.1-1.35x the one-task path at 16,000 particles, 1.0-1.45x at 8,192 and 0.8-1.1x at 4,563 (best
-#: round against best round; ``benchmarks.sim_split``, BENCHMARKS.md session 45); the worlds' scenes (at most 2,048)
-#: always run one task each.
+#: round against best round; ``benchmarks.sim_split``, BENCHMARKS.md, "One 3D environment on both threads"); the
+#: worlds' scenes (at most 2,048) always run one task each.
 _SPLIT_ENV_PARTICLES = 6000
 #: dimensions whose particle-grid transfers run factored: the stencil's per-node affine terms (mv + A (o - fx) dx to
 #: the grid, sum w g_v (o - fx)^T back) as sums over the offset o's digits, additions instead of matrix products.
-#: The same equations, rounded differently: 1.45-1.95x the one-task speed of the 3D dam break (16,000-128,000
-#: particles, 27-node stencil; ``benchmarks.sim_split``, BENCHMARKS.md session 45). 2D keeps the direct form for now:
-#: the shipped source data and every stored result are its bits. Factored, the default world's scene ran 1.11-1.36x
-#: faster at B = 32 (``benchmarks/scratch_s45/factored_2d.sh``); switching costs regenerating the shipped data.
+#: The same equations, rounded differently (``sim.engine.stencil``): 1.45-1.95x the one-task speed of the 3D dam
+#: break (16,000-128,000 particles, 27-node stencil). 2D keeps the direct form: the shipped source data and every
+#: stored result are its bits, and regenerating them is what a switch costs (factored, the default world's scene runs
+#: 1.11-1.36x faster at B = 32). Both: ``benchmarks.sim_split``, BENCHMARKS.md, "factored transfers, 3D and 2D". Read
+#: when a solver is built (``benchmarks.sim_split`` sets it before building one).
 _FACTORED_TRANSFERS = (3,)
-#: m added to every collider's culling bounds, so that float32 rounding never culls a point inside a collider
-_CULL_MARGIN = 1e-3
 
 
 @ti.func
 def _not_finite(v):
     """NaN/inf test on the bit pattern: survives fast-math, which folds ``v != v`` to False."""
     return (ti.bit_cast(v, ti.u32) & ti.u32(0x7F800000)) == ti.u32(0x7F800000)
-
-
-@ti.func
-def _rotate(v, cs):
-    """v rotated by the angle whose (cos, sin) is cs: a frame's vector in its parent frame."""
-    return ti.Vector([cs[0] * v[0] - cs[1] * v[1], cs[1] * v[0] + cs[0] * v[1]])
 
 
 @ti.data_oriented
@@ -75,7 +69,7 @@ class MPMSolver:
         cfg.validate()
         self.cfg = cfg
         self.arch = init_taichi(cfg.arch)
-        self.dim = dim = cfg.dim
+        self.dim = cfg.dim
         self.B, self.N = cfg.n_envs, cfg.max_particles
         self.NB, self.NS = cfg.max_bodies, cfg.max_shapes
         self.res = cfg.res
@@ -85,7 +79,7 @@ class MPMSolver:
         # parallelism of a launch of ~1 ms was lost: Taichi 1.7 compiles a top-level CPU range-for into one
         # contiguous block per thread of at least 512 iterations (its make_cpu_multithreaded_range_for
         # pass), so a loop over B < 1024 environments ran on one thread, and the other thread of a short
-        # loop often woke too late to take its block (BENCHMARKS.md, session 34). The loops run over
+        # loop often woke too late to take its block (BENCHMARKS.md, simulator throughput). The loops run over
         # threads x blocks instead, each block exactly one thread's, holding the running environments
         # t, t + T, t + 2T, ... (interleaved, so that long trajectories at one end of a batch do not all land
         # on one thread). Scheduling only: every environment's arithmetic, and so every result, is the
@@ -95,14 +89,19 @@ class MPMSolver:
         #: slabs of the split path (``_substep_split``): one per thread, at least 2 (so that one thread runs it too: tests)
         self._slabs = max(self.threads, 2)
         self._n_running = self.B
-        self.p_vol = cfg.dx**dim / cfg.ppc
-        self.p_mass = cfg.rho * self.p_vol
-        self.bulk = cfg.rho * cfg.sound_speed**2
-        #: per-substep decay of stretch (J > 1); 0 = off (see physics.update_volume_ratio)
-        self.stretch_rate = min(cfg.dt / cfg.stretch_relax, 1.0) if cfg.stretch_relax > 0 else 0.0
+        #: the transfers (shared with the differentiable solver) and the particle constants
+        self.stencil = Stencil(cfg, ti.f32, factored=cfg.dim in _FACTORED_TRANSFERS)
         self.time = 0.0
         self.specs: list[EnvSpec] = []
+        self._place_fields()
+        ti.sync()  # materialise now: Taichi validates pending fields lazily, and a closed solver's would fail
+        self._body_state = np.zeros((self.B, self.NB, 6), np.float32)  # x, y, th, vx, vy, w
+        self._schedule: ti.Ndarray | None = None  # (B, T, 3) target poses on the device (load_schedule)
+        self._schedule_body = 0
 
+    def _place_fields(self) -> None:
+        """Every field in one tree: particles, per-environment flags and boxes, the grid, the colliders."""
+        dim = self.dim
         fb = ti.FieldsBuilder()
         self.x = ti.Vector.field(dim, ti.f32)
         self.v = ti.Vector.field(dim, ti.f32)
@@ -130,31 +129,10 @@ class MPMSolver:
         self.grid_v = ti.Vector.field(dim, ti.f32)
         self.grid_m = ti.field(ti.f32)
         fb.dense(ti.axes(*range(dim + 1)), (self.B,) + self.res).place(self.grid_v, self.grid_m)
-        self.body_pos = ti.Vector.field(dim, ti.f32)
-        self.body_vel = ti.Vector.field(dim, ti.f32)
-        self.body_rot = ti.field(ti.f32)
-        self.body_omega = ti.field(ti.f32)
-        self.body_cs = ti.Vector.field(2, ti.f32)  # cos, sin of body_rot, refreshed each substep
-        self.body_radius = ti.field(ti.f32)  # bounding radius about the body origin (SDF culling)
-        self.body_first_shape = ti.field(ti.i32)  # shapes of body k: body_first_shape .. + body_nshapes - 1
-        self.body_nshapes = ti.field(ti.i32)
-        fb.dense(ti.ij, (self.B, self.NB)).place(self.body_pos, self.body_vel, self.body_rot,
-                                                   self.body_omega, self.body_cs, self.body_radius,
-                                                   self.body_first_shape, self.body_nshapes)
-        self.shape_kind = ti.field(ti.i32)
-        self.shape_body = ti.field(ti.i32)
-        self.shape_c = ti.Vector.field(2, ti.f32)
-        self.shape_cs = ti.Vector.field(2, ti.f32)
-        self.shape_size = ti.Vector.field(2, ti.f32)
-        self.shape_lo = ti.Vector.field(2, ti.f32)  # the shape's bounds in its body's frame (contact culling)
-        self.shape_hi = ti.Vector.field(2, ti.f32)
-        fb.dense(ti.ij, (self.B, self.NS)).place(self.shape_kind, self.shape_body, self.shape_c,
-                                                   self.shape_cs, self.shape_size, self.shape_lo, self.shape_hi)
+        #: tank walls and bodies: shapes, poses, velocities (``sim.engine.colliders``, shared with the
+        #: differentiable solver); the bodies' cos, sin are refreshed each substep
+        self.colliders = Colliders(self.cfg, self.B, self.NB, self.NS, fb)
         self._tree = fb.finalize()
-        ti.sync()  # materialise now: Taichi validates pending fields lazily, and a closed solver's would fail
-        self._body_state = np.zeros((self.B, self.NB, 6), np.float32)  # x, y, th, vx, vy, w
-        self._schedule: ti.Ndarray | None = None  # (B, T, 3) target poses on the device (load_schedule)
-        self._schedule_body = 0
 
     # ================================================================== set-up
     def reset(self, specs: Sequence[EnvSpec], slots: Sequence[int] | None = None) -> None:
@@ -165,7 +143,6 @@ class MPMSolver:
         so, environments being independent, the same results. Everything is checked before any field
         is written: counts against the capacities, water inside the tank, colliders inside the domain.
         """
-        cfg = self.cfg
         if len(specs) != self.B:
             raise ConfigError(f"reset: got {len(specs)} environment specs, sim.n_envs = {self.B}")
         slots = list(range(self.B)) if slots is None else [int(k) for k in slots]
@@ -173,54 +150,16 @@ class MPMSolver:
             raise ConfigError(f"reset: slots must be {self.B} integers >= 0, got {slots}")
         if self.dim != 2 and any(s.bodies for s in specs):
             raise ConfigError("colliding bodies are implemented for sim.dim = 2 only (3D: tank walls only)")
-        lo_w, hi_w = cfg.wall, [L - cfg.wall for L in cfg.domain]
         parts = np.zeros((self.B, self.N, self.dim), np.float32)
         n_part = np.zeros(self.B, np.int32)
-        kind = np.zeros((self.B, self.NS), np.int32)
-        sbody = np.zeros((self.B, self.NS), np.int32)
-        sc = np.zeros((self.B, self.NS, 2), np.float32)
-        scs = np.zeros((self.B, self.NS, 2), np.float32)
-        ssize = np.ones((self.B, self.NS, 2), np.float32)
-        slo = np.zeros((self.B, self.NS, 2), np.float32)
-        shi = np.zeros((self.B, self.NS, 2), np.float32)
-        bstate = np.zeros((self.B, self.NB, 6), np.float32)
-        radius = np.zeros((self.B, self.NB), np.float32)
-        first = np.zeros((self.B, self.NB), np.int32)
-        nshapes = np.zeros((self.B, self.NB), np.int32)
+        layout = self.colliders.empty_layout()
         for b, spec in enumerate(specs):
             if len(spec.bodies) > self.NB:
                 raise ConfigError(f"env {b}: {len(spec.bodies)} bodies > sim.max_bodies = {self.NB}")
-            rng = np.random.default_rng([cfg.seed, slots[b]])
-            pts = sample_water(spec, cfg.dx, cfg.ppc, rng, cfg.jitter) if self.dim == 2 else _sample_nd(spec, cfg, rng)
-            if len(pts) > self.N:
-                raise ConfigError(f"env {b}: {len(pts)} particles > sim.max_particles = {self.N}; raise "
-                                  f"sim.max_particles or use less water / a coarser sim.dx")
-            if len(pts) and (pts.min(0) < lo_w).any() or len(pts) and (pts.max(0) > np.asarray(hi_w)).any():
-                raise ConfigError(f"env {b}: water outside the tank interior [{lo_w:g}, {hi_w}] m "
-                                  f"(particles span {pts.min(0)} .. {pts.max(0)})")
+            pts = self._water(b, spec, slots[b])
             parts[b, : len(pts)] = pts
             n_part[b] = len(pts)
-            s = 0
-            for k, body in enumerate(spec.bodies):
-                bstate[b, k, :3] = body.pose
-                first[b, k], nshapes[b, k] = s, len(body.shapes)
-                if body.shapes:
-                    radius[b, k] = max(np.linalg.norm(sh.center) + sh.bounding_radius() for sh in body.shapes) \
-                        + _CULL_MARGIN
-                for outline in body.world_outlines():
-                    if (outline.min(0) < -1e-6).any() or (outline.max(0) > np.asarray(cfg.domain) + 1e-6).any():
-                        raise ConfigError(f"env {b}: collider of body {body.name!r} at pose {body.pose} "
-                                          f"leaves the domain [0, {list(cfg.domain)}] m")
-                for sh in body.shapes:
-                    if s >= self.NS:
-                        raise ConfigError(f"env {b}: more than sim.max_shapes = {self.NS} collider shapes")
-                    kind[b, s] = SHAPE_KINDS[sh.kind]
-                    sbody[b, s] = k
-                    sc[b, s] = sh.center
-                    scs[b, s] = (math.cos(sh.angle), math.sin(sh.angle))
-                    ssize[b, s] = sh.size
-                    slo[b, s], shi[b, s] = sh.body_bounds(_CULL_MARGIN)
-                    s += 1
+            self.colliders.pack_env(layout, b, spec.bodies)
         # --- all checks passed: write fields
         self.specs = list(specs)
         self.x.from_numpy(parts)
@@ -231,33 +170,31 @@ class MPMSolver:
         self.nan_flag.fill(0)
         self.pinned.fill(0)
         self.set_active(np.ones(self.B, bool))
-        self.shape_kind.from_numpy(kind)
-        self.shape_body.from_numpy(sbody)
-        self.shape_c.from_numpy(sc)
-        self.shape_cs.from_numpy(scs)
-        self.shape_size.from_numpy(ssize)
-        self.shape_lo.from_numpy(slo)
-        self.shape_hi.from_numpy(shi)
-        self.body_radius.from_numpy(radius)
-        self.body_first_shape.from_numpy(first)
-        self.body_nshapes.from_numpy(nshapes)
-        self._body_state = bstate
-        self._push_bodies()
+        self.colliders.write(layout)
+        self._body_state = layout["state"]
         self.grid_v.fill(0.0)
         self.grid_m.fill(0.0)
         self._full_boxes()
         self.time = 0.0
         self._reported: set[int] = set()
 
+    def _water(self, b: int, spec: EnvSpec, slot: int) -> np.ndarray:
+        """Environment b's water particles, sampled with the generator [sim.seed, slot]; checked against the
+        capacity and the tank interior."""
+        cfg = self.cfg
+        lo_w, hi_w = cfg.wall, [L - cfg.wall for L in cfg.domain]
+        rng = np.random.default_rng([cfg.seed, slot])
+        pts = sample_water(spec, cfg.dx, cfg.ppc, rng, cfg.jitter) if self.dim == 2 else _sample_nd(spec, cfg, rng)
+        if len(pts) > self.N:
+            raise ConfigError(f"env {b}: {len(pts)} particles > sim.max_particles = {self.N}; raise "
+                              f"sim.max_particles or use less water / a coarser sim.dx")
+        if len(pts) and (pts.min(0) < lo_w).any() or len(pts) and (pts.max(0) > np.asarray(hi_w)).any():
+            raise ConfigError(f"env {b}: water outside the tank interior [{lo_w:g}, {hi_w}] m "
+                              f"(particles span {pts.min(0)} .. {pts.max(0)})")
+        return pts
+
     def _push_bodies(self) -> None:
-        st = self._body_state
-        if self.dim == 2:
-            self.body_pos.from_numpy(np.ascontiguousarray(st[..., 0:2]))
-            self.body_vel.from_numpy(np.ascontiguousarray(st[..., 3:5]))
-        self.body_rot.from_numpy(np.ascontiguousarray(st[..., 2]))
-        self.body_omega.from_numpy(np.ascontiguousarray(st[..., 5]))
-        c, s = cos_sin(st[..., 2], portable=True)  # float64 through libm: the same bits on every CPU
-        self.body_cs.from_numpy(np.stack([c, s], -1).astype(np.float32))
+        self.colliders.push(self._body_state)
 
     # ================================================================== bodies
     def body_poses(self, body: int) -> np.ndarray:
@@ -317,16 +254,14 @@ class MPMSolver:
         for b in range(self.B):
             if ti.static(self.dim == 2):
                 for d in ti.static(range(2)):
-                    self.body_vel[b, k][d] = ti.cast((targets[b, tick, d] - ti.cast(self.body_pos[b, k][d], ti.f64)) / h, ti.f32)
-            self.body_omega[b, k] = ti.cast((targets[b, tick, 2] - ti.cast(self.body_rot[b, k], ti.f64)) / h, ti.f32)
+                    self.colliders.body_vel[b, k][d] = ti.cast(
+                        (targets[b, tick, d] - ti.cast(self.colliders.body_pos[b, k][d], ti.f64)) / h, ti.f32)
+            self.colliders.body_omega[b, k] = ti.cast(
+                (targets[b, tick, 2] - ti.cast(self.colliders.body_rot[b, k], ti.f64)) / h, ti.f32)
 
     def _pull_bodies(self, velocities: bool = True) -> None:
         """Refresh the host copy; velocities too before a push (``track`` writes them on the device)."""
-        self._body_state[..., 0:2] = self.body_pos.to_numpy()
-        self._body_state[..., 2] = self.body_rot.to_numpy()
-        if velocities:
-            self._body_state[..., 3:5] = self.body_vel.to_numpy()
-            self._body_state[..., 5] = self.body_omega.to_numpy()
+        self.colliders.pull(self._body_state, velocities)
 
     # ================================================================== stepping
     def set_active(self, mask: np.ndarray) -> None:
@@ -437,160 +372,11 @@ class MPMSolver:
 
     # ================================================================== Taichi functions
     @ti.func
-    def _gidx(self, b, I):
-        r = ti.Vector.zero(ti.i32, self.dim + 1)
-        r[0] = b
-        for d in ti.static(range(self.dim)):
-            r[d + 1] = I[d]
-        return r
-
-    @ti.func
-    def _to_body(self, b, k, p):
-        cs = self.body_cs[b, k]
-        d = p - self.body_pos[b, k]
-        return ti.Vector([cs[0] * d[0] + cs[1] * d[1], -cs[1] * d[0] + cs[0] * d[1]])
-
-    @ti.func
-    def _shape_sdf(self, b, s, p):
-        return self._shape_sdf_in_body(b, s, self._to_body(b, self.shape_body[b, s], p))
-
-    @ti.func
-    def _shape_sdf_in_body(self, b, s, q_body):
-        """Signed distance of shape s at q_body, a point already in its body's frame."""
-        q = q_body - self.shape_c[b, s]
-        cs = self.shape_cs[b, s]
-        q = ti.Vector([cs[0] * q[0] + cs[1] * q[1], -cs[1] * q[0] + cs[0] * q[1]])
-        size = self.shape_size[b, s]
-        kind = self.shape_kind[b, s]
-        phi = 0.0
-        if kind == 0:  # box
-            phi, _ = box_sdf(q, size, ti.f32)  # the normal: _normal_and_velocity (sim.box_normals)
-        elif kind == 1:  # capsule along local x
-            cx = ti.math.clamp(q[0], -size[0], size[0])
-            phi = ti.Vector([q[0] - cx, q[1]]).norm() - size[1]
-        else:  # ellipse: first-order distance estimate outside, scaled radius inside
-            k0 = (q / size).norm()
-            if k0 < 1.0:
-                phi = (k0 - 1.0) * ti.min(size[0], size[1])
-            else:
-                k1 = (q / (size * size)).norm()
-                phi = k0 * (k0 - 1.0) / k1
-        return phi
-
-    @ti.func
-    def _contact(self, b, p):
-        """The collider p is deepest inside: (phi < 0, its index; _WALL - axis*2 - side for the tank
-        walls), or (0, 0) when p is inside none.
-
-        The callers act only on phi < 0 (projection, ghost mass), so only colliders that can contain p
-        are evaluated: a body whose bounding circle does not contain p is skipped, and so is a shape
-        whose bounds in the body frame do not (circle and bounds contain their shapes with a margin,
-        and every shape's distance, the ellipse's estimate included, is negative exactly inside it;
-        the tests compare squared norms and coordinates: no square root). The minimum over the colliders
-        containing p, scanned in the same order with the same strict test, is the minimum over all of
-        them: the same (phi, index) to the bit as the full scan whenever p is inside a collider.
-        This query is the solver's largest cost (benchmarks.sim_profile).
-        """
-        phi = 0.0
-        idx = 0
-        for d in ti.static(range(self.dim)):
-            lo = p[d] - self.cfg.wall
-            hi = (self.cfg.domain[d] - self.cfg.wall) - p[d]
-            if lo < phi:
-                phi = lo
-                idx = _WALL - 2 * d
-            if hi < phi:
-                phi = hi
-                idx = _WALL - 2 * d - 1
-        if ti.static(self.dim == 2):
-            for k in ti.static(range(self.NB)):  # shapes are stored body by body (reset)
-                ns = self.body_nshapes[b, k]
-                r = self.body_radius[b, k]
-                if ns > 0 and (p - self.body_pos[b, k]).norm_sqr() < r * r:
-                    q = self._to_body(b, k, p)
-                    s0 = self.body_first_shape[b, k]
-                    for s in range(s0, s0 + ns):
-                        lo, hi = self.shape_lo[b, s], self.shape_hi[b, s]
-                        if lo[0] < q[0] and q[0] < hi[0] and lo[1] < q[1] and q[1] < hi[1]:
-                            ps = self._shape_sdf_in_body(b, s, q)
-                            if ps < phi:
-                                phi = ps
-                                idx = s
-        return phi, idx
-
-    @ti.func
-    def _normal_and_velocity(self, b, idx, p):
-        n = ti.Vector.zero(ti.f32, self.dim)
-        vc = ti.Vector.zero(ti.f32, self.dim)
-        if idx < 0:
-            w = _WALL - idx
-            for d in ti.static(range(self.dim)):
-                if w // 2 == d:
-                    n[d] = 1.0 if w % 2 == 0 else -1.0
-        else:
-            if ti.static(self.dim == 2):
-                k = self.shape_body[b, idx]
-                is_box = self.shape_kind[b, idx] == 0
-                if ti.static(self.cfg.box_normals == "analytic") and is_box:  # physics.box_sdf's, as the f64 solver
-                    q = self._to_body(b, k, p) - self.shape_c[b, idx]
-                    cs = self.shape_cs[b, idx]
-                    _, nl = box_sdf(ti.Vector([cs[0] * q[0] + cs[1] * q[1], -cs[1] * q[0] + cs[0] * q[1]]),
-                                    self.shape_size[b, idx], ti.f32)
-                    n = _rotate(_rotate(nl, cs), self.body_cs[b, k])  # shape frame -> body -> world
-                else:  # capsule, ellipse (and boxes with box_normals=central): central difference over 0.1 dx
-                    h = 0.1 * self.cfg.dx
-                    for d in ti.static(range(2)):
-                        e = ti.Vector.zero(ti.f32, 2)
-                        e[d] = h
-                        n[d] = self._shape_sdf(b, idx, p + e) - self._shape_sdf(b, idx, p - e)
-                    n = n / ti.max(n.norm(), 1e-12)
-                r = p - self.body_pos[b, k]
-                w = self.body_omega[b, k]
-                vc = self.body_vel[b, k] + ti.Vector([-w * r[1], w * r[0]])
-        return n, vc
-
-    @ti.func
     def _p2g(self, b, p, r0, r1, rows: ti.template()):
         """Scatter particle p's mass and momentum to its 3^dim stencil; returns the stencil's first node.
         With ``rows`` only the stencil's nodes in grid rows r0 .. r1 - 1 (the split path's slab)."""
-        dx = self.cfg.dx
-        inv_dx = 1.0 / dx
-        dt = self.cfg.dt
-        Xp = self.x[b, p] * inv_dx
-        base = ti.cast(Xp - 0.5, ti.i32)
-        fx = Xp - base
-        w = bspline_weights(fx)
-        affine = affine_momentum(self.J[b, p], self.C[b, p], self.p_mass, self.p_vol, self.bulk,
-                                 self.cfg.viscosity, dt, inv_dx, ti.f32, self.dim)
-        mv = self.p_mass * self.v[b, p]
-        # 3D (_FACTORED_TRANSFERS): mv + affine (offset - fx) dx = c0 + affine offset dx, the second term a sum
-        # of the columns of affine dx (offset_d in {0, 1, 2}): additions only, shared between the 27 nodes
-        # (in 2D c0 and a_dx go unused, and the compiler drops them)
-        c0 = mv - affine @ (fx * dx)
-        a_dx = [ti.Vector([affine[r, d] * dx for r in ti.static(range(self.dim))]) for d in ti.static(range(self.dim))]
-        for offset in ti.static(ti.grouped(ti.ndrange(*([3] * self.dim)))):
-            weight = 1.0
-            for d in ti.static(range(self.dim)):
-                weight *= w[offset[d]][d]
-            mom = mv  # declared here for Taichi's scoping; each branch below sets it
-            if ti.static(self.dim in _FACTORED_TRANSFERS):
-                mom = c0
-                for d in ti.static(range(self.dim)):
-                    if ti.static(offset[d] == 1):
-                        mom = mom + a_dx[d]
-                    elif ti.static(offset[d] == 2):
-                        mom = mom + 2.0 * a_dx[d]
-            else:
-                mom = mv + affine @ ((offset - fx) * dx)
-            gi = self._gidx(b, base + offset)
-            if ti.static(self.serial_p2g):  # this node's scatter runs on one thread: plain adds
-                if not ti.static(rows) or (r0 <= gi[1] and gi[1] < r1):
-                    self.grid_v[gi] = self.grid_v[gi] + weight * mom
-                    self.grid_m[gi] = self.grid_m[gi] + weight * self.p_mass
-            else:
-                self.grid_v[gi] += weight * mom
-                self.grid_m[gi] += weight * self.p_mass
-        return base
+        return self.stencil.p2g(self.grid_v, self.grid_m, b, self.x[b, p], self.v[b, p], self.C[b, p], self.J[b, p],
+                                self.serial_p2g, rows, r0, r1)
 
     @ti.kernel
     def _full_boxes(self):
@@ -606,22 +392,9 @@ class MPMSolver:
 
     @ti.func
     def _update_node(self, I):
-        """Momentum to velocity, gravity, collider boundary condition at grid node I = (b, i, j[, k])."""
-        m = self.grid_m[I]
-        if m > 0:
-            v = self.grid_v[I] / m
-            v[1] -= self.cfg.dt * self.cfg.gravity
-            b = I[0]
-            pos = ti.Vector.zero(ti.f32, self.dim)
-            for d in ti.static(range(self.dim)):
-                pos[d] = I[d + 1] * self.cfg.dx
-            phi, idx = self._contact(b, pos)
-            if phi < 0:
-                n, vc = self._normal_and_velocity(b, idx, pos)
-                v = separate(v, vc, n, self.cfg.friction)
-            if ti.static(self.cfg.boundary_density):  # ghost mass: a solid node reads as water at rest
-                self.grid_m[I] = ghost_mass(m, phi, ti.static(self.cfg.ppc * self.p_mass))
-            self.grid_v[I] = v
+        """Momentum to velocity, gravity, collider boundary condition at grid node I = (b, i, j[, k]), in place."""
+        self.stencil.update_node(self.grid_v, self.grid_m, self.grid_v, self.grid_m, I, self.colliders,
+                                 self.colliders, 0)
 
     @ti.func
     def _for_active_nodes(self, b, i, fn: ti.template()):
@@ -661,10 +434,7 @@ class MPMSolver:
     @ti.func
     def _move_bodies(self, b):
         """Move environment b's kinematic bodies by their prescribed velocities over one substep."""
-        for k in range(self.NB):
-            self.body_pos[b, k] += self.cfg.dt * self.body_vel[b, k]
-            self.body_rot[b, k] += self.cfg.dt * self.body_omega[b, k]
-            self.body_cs[b, k] = ti.Vector([ti.cos(self.body_rot[b, k]), ti.sin(self.body_rot[b, k])])
+        self.colliders.move(b)
 
     @ti.kernel
     def _substep(self):
@@ -828,46 +598,9 @@ class MPMSolver:
         """Grid to particle p of environment b: velocity and affine field, advection, collider
         projection, volume ratio, NaN parking and the safety clamp."""
         dim = ti.static(self.dim)
-        dx = ti.static(self.cfg.dx)
-        dt = ti.static(self.cfg.dt)
-        Xp = self.x[b, p] / dx
-        base = ti.cast(Xp - 0.5, ti.i32)
-        fx = Xp - base
-        w = bspline_weights(fx)
-        new_v = ti.Vector.zero(ti.f32, dim)
-        new_C = ti.Matrix.zero(ti.f32, dim, dim)
-        mass_near = 0.0
-        wgo = ti.Matrix.zero(ti.f32, dim, dim)  # 3D: sum of weight g_v offset^T (C below; _FACTORED_TRANSFERS)
-        for offset in ti.static(ti.grouped(ti.ndrange(*([3] * dim)))):
-            weight = 1.0
-            for d in ti.static(range(dim)):
-                weight *= w[offset[d]][d]
-            gi = self._gidx(b, base + offset)
-            g_v = self.grid_v[gi]
-            if ti.static(self.cfg.volume_correction):
-                mass_near += weight * self.grid_m[gi]
-            if ti.static(dim in _FACTORED_TRANSFERS):
-                wg = weight * g_v
-                new_v += wg
-                for d in ti.static(range(dim)):
-                    if ti.static(offset[d] > 0):
-                        for r in ti.static(range(dim)):
-                            wgo[r, d] += wg[r] if ti.static(offset[d] == 1) else 2.0 * wg[r]
-            else:
-                new_v += weight * g_v
-                new_C += 4.0 / dx * weight * g_v.outer_product(offset - fx)
-        if ti.static(dim in _FACTORED_TRANSFERS):  # sum of weight g_v (offset - fx)^T, times 4 / dx
-            new_C = 4.0 / dx * (wgo - new_v.outer_product(fx))
-        xn = self.x[b, p] + dt * new_v
-        phi, idx = self._contact(b, xn)
-        if phi < 0:
-            n, vc = self._normal_and_velocity(b, idx, xn)
-            xn -= phi * n
-            new_v = separate(new_v, vc, n, self.cfg.friction)
-        J = update_volume_ratio(self.J[b, p], new_C.trace(), mass_near, dt, ti.static(self.cfg.ppc * self.p_mass),
-                                ti.static(min(dt / self.cfg.volume_relax, 1.0)),
-                                self.cfg.volume_correction, self.cfg.tension,
-                                self.stretch_rate)
+        new_v, new_C, mass_near = self.stencil.g2p(self.grid_v, self.grid_m, b, self.x[b, p])
+        xn, new_v = self.stencil.advect(b, self.x[b, p], new_v, self.colliders, self.colliders, 0)
+        J = self.stencil.volume_ratio(self.J[b, p], new_C, mass_near)
         bad = _not_finite(J)
         for d in ti.static(range(dim)):
             bad = bad | _not_finite(xn[d]) | _not_finite(new_v[d])
@@ -878,13 +611,7 @@ class MPMSolver:
             new_v = ti.Vector.zero(ti.f32, dim)
             new_C = ti.Matrix.zero(ti.f32, dim, dim)
             J = 1.0
-        clamped = False
-        for d in ti.static(range(dim)):
-            lo = dx
-            hi = (self.res[d] - 2) * dx
-            if xn[d] < lo or xn[d] > hi:
-                clamped = True
-                xn[d] = ti.math.clamp(xn[d], lo, hi)
+        xn, clamped = self.stencil.keep_on_grid(xn)
         if clamped:
             self.pinned[b] += 1
         self.x[b, p] = xn
@@ -903,7 +630,7 @@ class MPMSolver:
                         k = bodies[r]
                         q = self.x[b, p]
                         if k >= 0:
-                            q = self._to_body(b, k, q)
+                            q = to_frame(q, self.colliders.body_pos[b, k], self.colliders.body_cs[b, k])
                         if lo[r, 0] <= q[0] and q[0] <= hi[r, 0] and lo[r, 1] <= q[1] and q[1] <= hi[r, 1]:
                             out[b, r] += 1
                             counted = 1
