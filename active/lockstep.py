@@ -61,15 +61,8 @@ def run_lockstep(runs: Sequence[MethodRun], pool: PlanPool, executor: PouringExe
         pending: dict[int, PlanNeed | SimNeed] = {}
         rows: dict[int, dict] = {}
 
-        def advance(k: int, result: list | None) -> None:
-            try:
-                pending[k] = next(steps[k]) if result is None else steps[k].send(result)
-            except StopIteration as done:
-                pending.pop(k, None)
-                rows[k] = done.value
-
         for k in steps:
-            advance(k, None)
+            _advance(steps, pending, rows, k, None)
         while pending:
             plans = [(k, n) for k, n in pending.items() if isinstance(n, PlanNeed)]
             if plans:
@@ -79,8 +72,17 @@ def run_lockstep(runs: Sequence[MethodRun], pool: PlanPool, executor: PouringExe
                 served = list(pending)
                 results = execute_needs(executor, [pending[k] for k in served])
             for k, res in zip(served, results):
-                advance(k, res)
+                _advance(steps, pending, rows, k, res)
         for k in steps:
             runs[k].finish_iteration(it, rows[k])
         times.append(time.perf_counter() - t0)
         log.info(round_line(it, iterations, len(steps), times[-1], sum(times) / len(times)))
+
+
+def _advance(steps: dict, pending: dict, rows: dict, k: int, result: list | None) -> None:
+    """Send run ``k`` the result it waited for (None: start it); record what it waits for next, or its row."""
+    try:
+        pending[k] = next(steps[k]) if result is None else steps[k].send(result)
+    except StopIteration as done:
+        pending.pop(k, None)
+        rows[k] = done.value

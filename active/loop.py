@@ -208,7 +208,7 @@ class MethodRun:
             ts = time.perf_counter()
             results = yield SimNeed(chunk, [c.actions for c in choices], exp.refit_every)
             t_sim += time.perf_counter() - ts
-            for j, (prob, ch, r) in enumerate(zip(chunk, choices, results)):
+            for prob, ch, r in zip(chunk, choices, results):
                 fallbacks += ch.source.startswith("fallback")  # no admitted candidate (either fallback)
                 reached += bool(r.goal_reached)
                 self.state["categories"].append({

@@ -18,7 +18,6 @@ from sim.world import WorldConfig
 
 from .experiment import ExperimentConfig
 
-
 #: planner keys the world or the experiment fixes: ``configs/planner/default.yaml`` interpolates them from
 #: their source, and a run whose planner value differs from the source's (set on the planner side) is refused
 DERIVED_PLANNER_KEYS = {

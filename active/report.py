@@ -41,11 +41,12 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-from matplotlib.ticker import MaxNLocator  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
 from scipy import stats  # noqa: E402
 
 import safeio  # noqa: E402
+
 from .baseline import FILE as MODEL_ONLY_FILE  # noqa: E402
 from .baseline import is_true, latest_rows  # noqa: E402
 from .baseline import rates as model_only_rates  # noqa: E402

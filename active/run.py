@@ -40,8 +40,8 @@ from hydra.utils import instantiate  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 import configs  # noqa: E402
-from configs.schema import check_config  # noqa: E402
 import safeio  # noqa: E402
+from configs.schema import check_config  # noqa: E402
 from planner import ActionSampler  # noqa: E402
 from planner.pool import PlanPool  # noqa: E402
 from sim.execute import PouringExecutor  # noqa: E402

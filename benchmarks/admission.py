@@ -45,8 +45,8 @@ def labelled_set(paths: Sequence[Path], overrides: Sequence[str], trajectories: 
     import torch
 
     from active.experiment import ExperimentConfig
-    from active.ladder import ceiling_subset
     from active.labels import label_transitions
+    from active.ladder import ceiling_subset
     from active.planner_setup import planning_dynamics
     from active.run import compose_config
     from planner import features

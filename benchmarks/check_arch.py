@@ -114,7 +114,7 @@ def main(argv=None) -> None:
                   "max_fraction_difference", "category_agreement", "executed_agreement"):
             print(f"  {k:26s} {cmp[k]:.4g}")
         print(f"  unstable                   {cmp['unstable']}")
-        print(f"  wall seconds               " + ", ".join(f"{k} {v:.1f}" for k, v in cmp["wall_seconds"].items()))
+        print("  wall seconds               " + ", ".join(f"{k} {v:.1f}" for k, v in cmp["wall_seconds"].items()))
         print(f"  {'PASSED' if cmp['passed'] else 'FAILED'} (tolerances {cmp['tolerances']})")
     safeio.write_json(args.out, result)
     if not args.run_one:

@@ -25,7 +25,6 @@ import numpy as np
 import torch
 
 import safeio
-
 from dynamics.model import LearnedDynamics
 
 

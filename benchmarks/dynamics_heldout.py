@@ -25,8 +25,8 @@ Each model is a single one (``model.ensemble=1``): the "mean of seeds" row is th
 from __future__ import annotations
 
 import argparse
-import re
 import dataclasses
+import re
 from pathlib import Path
 from typing import Any, Sequence
 

@@ -29,7 +29,6 @@ from typing import Any, Sequence
 import torch
 
 import safeio
-
 from mde.model import GPMDE
 
 TARGET_FIT_1200_S = 30.0

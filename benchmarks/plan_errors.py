@@ -56,8 +56,8 @@ def main(argv: list[str] | None = None) -> dict:
     from active.experiment import ExperimentConfig
     from active.ladder import execute_plans, plan_all
     from active.planner_setup import build_planner_config, planner_workers, planning_dynamics
-    from active.seeds import derive_seed
     from active.run import compose_config
+    from active.seeds import derive_seed
     from planner.pool import PlanPool
     from sim.execute import PouringExecutor
     from sim.problems import sample_problems
@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> dict:
     executor.close()
 
     steps = []
-    for k, (plan, res) in enumerate(zip(plans, results)):
+    for k, (_plan, res) in enumerate(zip(plans, results)):
         if res is None:
             continue
         pours = 0

@@ -27,14 +27,13 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
-
 import torch
 
 from benchmarks._cli import report
 from planner.config import PlannerConfig
 from planner.rrt import Planner, _Evaluator
-from task.threads import torch_threads
 from task.problems import sample_problems
+from task.threads import torch_threads
 from tests.doubles.standins import StandInGPMDE, StandInMLPDynamics, synthetic_deviation_dataset
 
 TARGET_PROPS_PER_S = 2000.0

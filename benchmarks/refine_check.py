@@ -31,14 +31,13 @@ def _last_checkpoint(folder: Path) -> Path | None:
 def run_check(run_dir: Path, method: str | None, steps: int, lr: float, world_name: str, n_problems: int | None,
               use_mde: bool, progress: bool = True) -> dict:
     import mde as mde_pkg
+    from active.experiment import ExperimentConfig
+    from active.planner_setup import build_planner_config, planning_dynamics
+    from active.refine import refine_plans
+    from active.seeds import derive_seed
     from planner import Planner
     from sim.problems import sample_problems
     from sim.world import WorldConfig, check_world
-
-    from active.experiment import ExperimentConfig
-    from active.planner_setup import build_planner_config, planning_dynamics
-    from active.seeds import derive_seed
-    from active.refine import refine_plans
 
     check_world(world_name)
     cfg_path = run_dir / "config.json"

@@ -11,7 +11,6 @@ import time
 import numpy as np
 
 import safeio
-
 from sim.execute import PouringExecutor
 from sim.problems import sample_problems
 from sim.skills import move, pour, random_actions

@@ -36,11 +36,10 @@ def profile(world_name: str = "default", envs: int = 32, substeps: int = 400, ar
     import taichi as ti
     from taichi.profiler.kernel_profiler import get_default_kernel_profiler
 
+    from active.run import compose_config
     from sim.backend import init_taichi
     from sim.mpm import MPMSolver
     from sim.world import WorldConfig
-
-    from active.run import compose_config
 
     init_taichi(arch, kernel_profiler=True)
     world = WorldConfig.from_mapping(compose_config([f"world={world_name}"])["world"])

@@ -16,11 +16,9 @@ import platform
 import time
 
 import numpy as np
-
 import taichi as ti
 
 import safeio
-
 from sim.backend import init_taichi
 from sim.config import SimConfig
 from sim.mpm import MPMSolver
@@ -151,7 +149,7 @@ def bench(envs=(1, 8, 32), seconds: float = 0.5, dx: float = 0.01, arch: str = "
         ref = ReferenceMPM88(B, n_p, cfg.res, cfg.dx, cfg.dt, cfg.rho * cfg.sound_speed**2, cfg.dx**2 / cfg.ppc,
                              cfg.rho, cfg.gravity, x0)
 
-        def ref_step(k):
+        def ref_step(k, ref=ref):
             for _ in range(k):
                 ref.substep()
             ti.sync()

@@ -23,7 +23,6 @@ from typing import Any, Mapping
 import numpy as np
 
 import safeio
-
 from sim.config import SimConfig
 from sim.motion import follow, min_jerk, min_jerk_duration
 from sim.mpm import MPMSolver

@@ -17,8 +17,16 @@ Commands: ``python -m dynamics.train`` (Hydra, ``configs/dynamics``), ``python -
 
 import importlib
 
-from .config import (DataConfig, DynamicsConfig, DynamicsError, EvalConfig, ModelConfig, TrainConfig, data_hash,
-                     model_hash)
+from .config import (
+    DataConfig,
+    DynamicsConfig,
+    DynamicsError,
+    EvalConfig,
+    ModelConfig,
+    TrainConfig,
+    data_hash,
+    model_hash,
+)
 from .data import Transitions, generate_source_dataset, generate_transitions
 from .model import LearnedDynamics
 

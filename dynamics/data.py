@@ -33,8 +33,18 @@ from task import ACTION_DIM, STATE_DIM, check_world, sample_problems
 from task import SKILL_MOVE as MOVE
 from task import SKILL_POUR as POUR
 
-from .config import (DATA_FORMAT_VERSION, POUR_FIELDS, TRAIN_COMMAND, DataConfig, DynamicsError, _digest, _plain,
-                     plant_dict, source_world, world_config)
+from .config import (
+    DATA_FORMAT_VERSION,
+    POUR_FIELDS,
+    TRAIN_COMMAND,
+    DataConfig,
+    DynamicsError,
+    _digest,
+    _plain,
+    plant_dict,
+    source_world,
+    world_config,
+)
 
 log = logging.getLogger(__name__)
 

@@ -34,8 +34,16 @@ from task import STATE_NAMES
 
 from .config import DynamicsConfig, _digest, _plain, data_hash, ensemble_member, plant_dict, world_config
 from .data import CLEARANCE_CAP, Transitions, generate_transitions, plant_clearance
-from .train import (CONFIG_DIR, _errors, _locked, cache_paths, format_errors, load_or_generate_dataset, load_or_train,
-                    split_by_trajectory)
+from .train import (
+    CONFIG_DIR,
+    _errors,
+    _locked,
+    cache_paths,
+    format_errors,
+    load_or_generate_dataset,
+    load_or_train,
+    split_by_trajectory,
+)
 
 log = logging.getLogger(__name__)
 GROUPS = ("source_val", "source_test", "target_far", "target_near")

@@ -31,8 +31,15 @@ import safeio
 from .config import DynamicsConfig, DynamicsError, single_models
 from .data import Transitions
 from .model import LearnedDynamics
-from .train import (CONFIG_DIR, SHIPPED_DIR, cache_paths, load_or_generate_dataset, load_or_train, shipped_model_path,
-                    shipped_path)
+from .train import (
+    CONFIG_DIR,
+    SHIPPED_DIR,
+    cache_paths,
+    load_or_generate_dataset,
+    load_or_train,
+    shipped_model_path,
+    shipped_path,
+)
 
 
 def check(c: DynamicsConfig) -> bool:

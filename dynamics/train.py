@@ -43,8 +43,18 @@ from task import STATE_NAMES
 from task.threads import torch_threads
 
 from . import data as data_mod
-from .config import (TRAIN_COMMAND, DataConfig, DynamicsConfig, DynamicsError, ModelConfig, TrainConfig,
-                     data_hash, model_hash, single_models, world_config)
+from .config import (
+    TRAIN_COMMAND,
+    DataConfig,
+    DynamicsConfig,
+    DynamicsError,
+    ModelConfig,
+    TrainConfig,
+    data_hash,
+    model_hash,
+    single_models,
+    world_config,
+)
 from .data import MOVE, POUR, Transitions
 from .ensemble import DynamicsEnsemble
 from .model import SKILLS, LearnedDynamics

@@ -16,8 +16,7 @@ from typing import Any
 
 import gpytorch
 import torch
-from botorch.exceptions.warnings import InputDataWarning
-from botorch.exceptions.warnings import OptimizationWarning
+from botorch.exceptions.warnings import InputDataWarning, OptimizationWarning
 from botorch.fit import DEFAULT_WARNING_HANDLER, fit_gpytorch_mll
 from botorch.models import SingleTaskGP
 from botorch.models.model import Model
@@ -33,8 +32,8 @@ from gpytorch.likelihoods import GaussianLikelihood
 from gpytorch.means import ConstantMean
 from gpytorch.mlls import ExactMarginalLogLikelihood
 from gpytorch.priors import GammaPrior, LogNormalPrior
-from linear_operator.utils.errors import NanError, NotPSDError
 from linear_operator.operators import DiagLinearOperator
+from linear_operator.utils.errors import NanError, NotPSDError
 from torch import Tensor
 
 from mde.config import ALLOWED_PRIORS

@@ -34,7 +34,6 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import torch
-
 from botorch.exceptions.errors import ModelFittingError
 from botorch.models import SingleTaskGP
 from botorch.models.model import Model
@@ -45,7 +44,6 @@ from torch import Tensor
 import safeio
 from task.threads import torch_threads
 
-from .kernel_cache import AffineMean, KernelCache
 from .config import MDEConfig
 from .gp import (
     DTYPE,
@@ -60,6 +58,7 @@ from .gp import (
     safe_cholesky,
     train_inputs_transformed,
 )
+from .kernel_cache import AffineMean, KernelCache
 
 #: ``-E[log chi^2_1] = Euler's gamma + log 2``: bias of the log of one squared standard Gaussian.
 LOG_CHI2_BIAS = 0.5772156649015329 + math.log(2.0)

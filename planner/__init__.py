@@ -7,8 +7,19 @@ dataclasses and the interface helpers in :mod:`planner.interfaces`. Stand-in mod
 """
 
 from .config import PlannerConfig
-from .interfaces import (ACTION_DIM, FEATURE_DIM, SKILL_MOVE, SKILL_POUR, STATE_DIM, DeviationEstimator,
-                         DynamicsModel, features, goal_distance, goal_reached, spill)
+from .interfaces import (
+                         ACTION_DIM,
+                         FEATURE_DIM,
+                         SKILL_MOVE,
+                         SKILL_POUR,
+                         STATE_DIM,
+                         DeviationEstimator,
+                         DynamicsModel,
+                         features,
+                         goal_distance,
+                         goal_reached,
+                         spill,
+)
 from .results import CandidateSet, PlannerStats, PlanResult, Trajectory
 from .rollout import rollout
 from .rrt import Planner

@@ -58,8 +58,8 @@ class DynamicsModel(Protocol):
 class DeviationEstimator(Protocol):
     """Model deviation estimator: a Gaussian over d(f_hat(s, a), s') given X = concat(s, a)."""
 
-    def predict(self, X: Tensor) -> tuple[Tensor, Tensor]:
-        """Return ``(mean [n], std [n])`` of the predicted deviation for features ``X`` [n, 8]."""
+    def predict(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """Return ``(mean [n], std [n])`` of the predicted deviation for features ``x`` [n, 8]."""
         ...
 
 
@@ -91,9 +91,9 @@ def _check_last_dim(s_shape: tuple[int, ...], a_shape: tuple[int, ...]) -> None:
         raise ValueError(f"states {tuple(s_shape)} and actions {tuple(a_shape)} batch shapes differ")
 
 
-def split_features(X: ArrayT) -> tuple[ArrayT, ArrayT]:
-    """Inverse of :func:`features`: ``X[..., :5], X[..., 5:]``."""
-    return X[..., :STATE_DIM], X[..., STATE_DIM:]
+def split_features(x: ArrayT) -> tuple[ArrayT, ArrayT]:
+    """Inverse of :func:`features`: ``x[..., :5], x[..., 5:]``."""
+    return x[..., :STATE_DIM], x[..., STATE_DIM:]
 
 
 def skill_ids(actions: ArrayT) -> ArrayT:

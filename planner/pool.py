@@ -322,7 +322,8 @@ class PlanPool:
                 out.append(f.result())
             else:
                 planner = Planner(self.dynamics, mde, self.config)
-                out.append(_recorded(lambda u=u: u.run(planner), u, self.config) if record else u.run(planner))
+                out.append(_recorded(lambda u=u, planner=planner: u.run(planner), u, self.config) if record
+                           else u.run(planner))
         return out
 
     def _publish_mdes(self, mdes: list[DeviationEstimator | None]) -> list[tuple[str, str] | None]:

@@ -57,7 +57,7 @@ import torch
 from task.threads import torch_threads
 
 from .config import PlannerConfig
-from .interfaces import (SKILL_MOVE, STATE_DIM, DeviationEstimator, DynamicsModel, goal_distance)
+from .interfaces import SKILL_MOVE, STATE_DIM, DeviationEstimator, DynamicsModel, goal_distance
 from .problems import validate_goal, validate_precondition, validate_start
 from .results import CandidateSet, PlannerStats, PlanResult, Trajectory
 from .sampling import ActionSampler

@@ -7,8 +7,13 @@ from botorch.models.model import Model
 from botorch.posteriors.gpytorch import GPyTorchPosterior
 from gpytorch.distributions import MultivariateNormal
 
-from active.acquisition import (DiscountedMaxLCB, DiscountedMaxUCB, TrajectoryStraddle, TrajectoryThompson,
-                                TrajectoryVariance)
+from active.acquisition import (
+    DiscountedMaxLCB,
+    DiscountedMaxUCB,
+    TrajectoryStraddle,
+    TrajectoryThompson,
+    TrajectoryVariance,
+)
 
 
 class KnownPosterior(Model):
@@ -114,8 +119,8 @@ def test_straddle_needs_positive_threshold():
 
 def test_user_acquisition_plugs_in_by_target(tmp_path, monkeypatch):
     """The README's example: a user's class named by `acquisition._target_`, no edit of our code."""
-    from active.experiment import ExperimentConfig
     from active.acquisition_factory import acquisition_factory
+    from active.experiment import ExperimentConfig
 
     (tmp_path / "my_acq.py").write_text(
         "from active.acquisition import TrajectoryAcquisition\n"
@@ -127,12 +132,24 @@ def test_user_acquisition_plugs_in_by_target(tmp_path, monkeypatch):
     from active.methods import build_method
     from active.run import compose_config
 
-    # README: python -m active.run acquisition._target_=my_acq.WorstStepStd method=active_balanced
+    # README: a new method beside the others, with the user's acquisition as its own
+    overrides = ["+methods.mine._target_=active.methods.ActiveChoice",
+                 "+methods.mine.acquisition._target_=my_acq.WorstStepStd", "method=mine", "experiment=tiny",
+                 f"dynamics.cache_root={tmp_path / 'cache'}"]
+    cfg = compose_config(overrides)
+    from active.run import prepare_run
+
+    spec = prepare_run(cfg, tmp_path / "out")  # every check a run makes before compute passes
+    assert spec.exp.methods == ("mine",)
+    method = build_method("mine", cfg["methods"])
+    acq = spec.make_acq(KnownPosterior(), method.acquisition)
+    assert type(acq).__name__ == "WorstStepStd"
+    assert acq(torch.cat([A, B])).tolist() == pytest.approx([-0.05, -0.1])  # -max_t sigma_t
+    # or in place of the configured acquisition (every method without its own spec then uses it)
     cfg = compose_config(["acquisition._target_=my_acq.WorstStepStd", "method=active_balanced"])
     make = acquisition_factory(cfg["acquisition"], ExperimentConfig())
     acq = make(KnownPosterior(), build_method("active_balanced").acquisition)  # c = 0.1: not accepted, not passed
     assert type(acq).__name__ == "WorstStepStd"
-    assert acq(torch.cat([A, B])).tolist() == pytest.approx([-0.05, -0.1])  # -max_t sigma_t
 
 
 @pytest.mark.parametrize("group,cls", [("alpha", DiscountedMaxUCB), ("lcb", DiscountedMaxLCB),
@@ -141,8 +158,8 @@ def test_user_acquisition_plugs_in_by_target(tmp_path, monkeypatch):
 def test_acquisition_group_builds_each_option_with_the_methods_c(group, cls):
     """configs/acquisition/<group>.yaml is a _partial_ spec; the loop completes it with the model, the
     method's c (where accepted) and d_max = experiment.d_max (where accepted)."""
-    from active.experiment import ExperimentConfig
     from active.acquisition_factory import acquisition_factory
+    from active.experiment import ExperimentConfig
     from active.methods import build_method
     from active.run import compose_config
 
@@ -179,8 +196,8 @@ def test_default_acquisition_is_the_papers_alpha_and_methods_carry_c():
 def test_a_method_with_its_own_acquisition_spec_ignores_the_configured_one():
     """active_straddle names acquisition._target_: one run can compare it with the paper's methods, which keep the
     configured acquisition (here the paper's alpha) and their c."""
-    from active.experiment import ExperimentConfig
     from active.acquisition_factory import acquisition_factory, check_method_acquisition
+    from active.experiment import ExperimentConfig
     from active.methods import build_method
     from active.run import compose_config
 
@@ -204,8 +221,8 @@ def test_a_method_with_its_own_acquisition_spec_ignores_the_configured_one():
                                                                   r"'no_such.Acq' cannot be imported"),
 ])
 def test_a_methods_own_acquisition_spec_is_checked_before_compute(override, match):
-    from active.experiment import ExperimentConfig
     from active.acquisition_factory import acquisition_factory, check_method_acquisition
+    from active.experiment import ExperimentConfig
     from active.methods import build_method
     from active.run import compose_config
 
@@ -324,8 +341,8 @@ def test_admission_method_gets_the_test_beta_d_max_and_the_chunks_candidate_step
     import numpy as np
 
     from active.acquisition import TrajectoryAdmissionGain
-    from active.experiment import ExperimentConfig
     from active.acquisition_factory import acquisition_factory
+    from active.experiment import ExperimentConfig
     from active.loop import _candidate_steps
     from active.methods import build_method
     from active.run import compose_config

@@ -16,8 +16,8 @@ import torch
 
 import safeio
 from active.experiment import ExperimentConfig
-from active.io import RunFileError, load_checked, read_csv, write_csv
 from active.identity import RUN_FORMAT_VERSION, config_digest
+from active.io import RunFileError, load_checked, read_csv, write_csv
 from active.loop import TIMING_FIELDS
 from active.run import compose_config, run_experiment
 from active.runlock import RunDirectoryError, read_owner
@@ -488,9 +488,9 @@ def test_model_plan_method_plans_its_candidates_without_the_mde():
     import numpy as np
 
     from active.loop import MethodRun
+    from active.methods import ModelPlan, RandomPlan, build_method
     from active.needs import PlanNeed
     from active.seeds import derive_seed
-    from active.methods import ModelPlan, RandomPlan, build_method
     from task.problems import Problem
 
     assert isinstance(build_method("model_plan"), ModelPlan) and isinstance(build_method("model_plan"), RandomPlan)
@@ -517,9 +517,9 @@ def test_model_plan_fallback_replaces_refused_rounds_by_plans_of_the_model_alone
     import numpy as np
 
     from active.loop import MethodRun
+    from active.methods import Choice
     from active.needs import PlanNeed
     from active.seeds import derive_seed
-    from active.methods import Choice
     from task.problems import Problem
 
     probs = [Problem(start=np.array([0.3 + 0.01 * k, 0.2, 0.0, 1.0, 0.0]), goal=0.4) for k in range(3)]

@@ -117,9 +117,8 @@ def test_world_content_is_part_of_the_data_hash(tmp_path):
 def test_the_plant_is_not_part_of_the_source_data_hash():
     """The source world has no plant: changing it keeps the source dataset (and the shipped file) valid,
     while the evaluation sets, which hold target-world data, key on it."""
-    from sim.world import DEFAULT_CONFIG
-
     from dynamics.config import plant_dict
+    from sim.world import DEFAULT_CONFIG
 
     c = DynamicsConfig()
     w = yaml.safe_load(DEFAULT_CONFIG.read_text())
@@ -133,9 +132,8 @@ def test_the_plant_is_not_part_of_the_source_data_hash():
 def test_the_goal_range_is_not_part_of_the_source_data_identity():
     """No goal enters the source data (goals only pose planning problems): another goal range keeps the
     dataset, its shards and the shipped file; the start region, which the generator draws from, counts."""
-    from sim.world import DEFAULT_CONFIG
-
     from dynamics.data import shard_identity
+    from sim.world import DEFAULT_CONFIG
 
     c = DynamicsConfig()
     w = yaml.safe_load(DEFAULT_CONFIG.read_text())

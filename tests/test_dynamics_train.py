@@ -7,8 +7,17 @@ import pytest
 import torch
 
 import dynamics.train as train_mod
-from dynamics import (DynamicsError, ModelConfig, TrainConfig, Transitions, cache_paths, error_table, fit,
-                      load_or_generate_dataset, load_or_train)
+from dynamics import (
+    DynamicsError,
+    ModelConfig,
+    TrainConfig,
+    Transitions,
+    cache_paths,
+    error_table,
+    fit,
+    load_or_generate_dataset,
+    load_or_train,
+)
 from dynamics.train import split_by_trajectory
 from tests.doubles.synthetic import synthetic_generator, synthetic_transitions
 

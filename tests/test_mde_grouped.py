@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import mde
-from mde import GroupedMDE, GPMDE
+from mde import GPMDE, GroupedMDE
 from planner import features
 
 T1 = {"num_threads": 1, "fit_maxiter": 60}

@@ -10,7 +10,7 @@ import torch
 from linear_operator.utils.errors import NotPSDError
 
 import mde.gp
-from mde import GroupedMDE, GPMDE, MDEConfig
+from mde import GPMDE, GroupedMDE, MDEConfig
 from mde.gp import safe_cholesky
 
 T1 = {"num_threads": 1, "max_iters": 2}  # see tests/test_mde_model.py

@@ -9,8 +9,16 @@ import pytest
 import torch
 import yaml
 
-from planner import (ActionSampler, DeviationEstimator, DynamicsModel, PlannerConfig, features, goal_distance,
-                     goal_reached, spill)
+from planner import (
+    ActionSampler,
+    DeviationEstimator,
+    DynamicsModel,
+    PlannerConfig,
+    features,
+    goal_distance,
+    goal_reached,
+    spill,
+)
 from planner.interfaces import describe_action, skill_ids, split_features
 from tests.doubles.standins import AnalyticPouringModel, StandInGPMDE, StandInMLPDynamics, ToyBoxMDE, ToyPointRobot
 

@@ -9,8 +9,13 @@ import pytest
 import torch
 
 from planner import PlannerConfig, goal_reached
-from tests.doubles.standins import (AnalyticPouringModel, StandInGPMDE, StandInMLPDynamics, plant_deviation,
-                                    synthetic_deviation_dataset)
+from tests.doubles.standins import (
+    AnalyticPouringModel,
+    StandInGPMDE,
+    StandInMLPDynamics,
+    plant_deviation,
+    synthetic_deviation_dataset,
+)
 
 
 def _pour_from(x, y, theta, hold, v=1.0):

@@ -23,10 +23,10 @@ import torch
 
 import safeio
 from active import runlock
-from active.io import RunFileError, load_checked, load_torch, read_csv, save_checked
-from active.preflight import check_geometry, check_seed, check_writable, max_dx
 from active.calibration import CALIBRATION_FORMAT, load_calibration, save_calibration
 from active.identity import RUN_FORMAT, RUN_FORMAT_VERSION, config_differences, config_digest
+from active.io import RunFileError, load_checked, load_torch, read_csv, save_checked
+from active.preflight import check_geometry, check_seed, check_writable, max_dx
 from active.rundir import check_run_directory, load_mde_checkpoint
 from active.runlock import RunDirectoryError, RunLock, RunLockedError, read_owner
 
