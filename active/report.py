@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import zlib
 from collections import Counter, defaultdict
 from itertools import combinations
 from pathlib import Path
@@ -50,7 +51,8 @@ import safeio  # noqa: E402
 from .baseline import FILE as MODEL_ONLY_FILE  # noqa: E402
 from .baseline import is_true, latest_rows  # noqa: E402
 from .baseline import rates as model_only_rates  # noqa: E402
-from .io import read_csv, write_csv  # noqa: E402
+from .identity import comparable_config, flatten  # noqa: E402
+from .io import RunFileError, read_csv, write_csv  # noqa: E402
 
 CATEGORY_ORDER = ("successful_pour", "unsuccessful_pour", "stuck_in_plant", "other")
 CATEGORY_COLOURS = {"successful_pour": "#2c7fb8", "unsuccessful_pour": "#f03b20", "stuck_in_plant": "#31a354",
@@ -59,13 +61,38 @@ DEFAULT_REFERENCE = "random_plan"
 CEILING_PANELS = {"test_success": "success", "test_plan_found": "found"}  # panel -> key of the ceiling entry
 MODEL_ONLY = "model alone (no MDE)"  # the reference name of the model-only rows in paired tables
 #: what became of a test problem (:func:`test_outcome`), in stacking order, with its colour
-OUTCOMES = {"goal reached": "#2c7fb8", "clean pour, wrong amount": "#a6bddb", "spilled": "#f03b20",
-            "stuck in plant": "#31a354", "other": "#bdbdbd", "no plan found": "#fed976"}
+OUTCOMES = {"goal_reached": "#2c7fb8", "clean_pour_wrong_amount": "#a6bddb", "spilled": "#f03b20",
+            "stuck_in_plant": "#31a354", "other": "#bdbdbd", "no_plan_found": "#fed976"}
 #: test-outcome column: the share of found plans that reached the goal (how good the admitted plans are, apart
 #: from how many the precondition admits: "no plan found")
-GIVEN_PLAN = "goal reached given a plan"
-OUTCOME_OF_CATEGORY = {"successful_pour": "clean pour, wrong amount", "unsuccessful_pour": "spilled",
-                       "stuck_in_plant": "stuck in plant", "other": "other"}
+GIVEN_PLAN = "goal_reached_given_plan"
+OUTCOME_OF_CATEGORY = {"successful_pour": "clean_pour_wrong_amount", "unsuccessful_pour": "spilled",
+                       "stuck_in_plant": "stuck_in_plant", "other": "other"}
+#: one colour per method in every figure, whatever methods a report holds (colour-blind-safe, Okabe-Ito first);
+#: a method not listed gets one of FALLBACK_COLOURS by a stable hash of its name
+METHOD_COLOURS = {"random_plan": "#0072B2", "active_balanced": "#D55E00", "active_admission": "#009E73",
+                  "model_plan": "#CC79A7", "random_actions": "#E69F00", "active_cautious": "#56B4E9",
+                  "active_mean": "#F0E442", "active_straddle": "#882255", "active_thompson": "#44AA99",
+                  "oracle": "#000000"}
+FALLBACK_COLOURS = ("#332288", "#117733", "#999933", "#AA4499", "#661100", "#6699CC", "#888888")
+
+
+def method_colour(method: str) -> str:
+    """The colour of ``method`` in every figure (the same in every report)."""
+    if method in METHOD_COLOURS:
+        return METHOD_COLOURS[method]
+    return FALLBACK_COLOURS[zlib.crc32(method.encode()) % len(FALLBACK_COLOURS)]
+
+
+def label(key: str) -> str:
+    """A column name as figure and table text."""
+    return key.replace("_", " ")
+
+
+def save_figure(fig: Any, path: Path) -> None:
+    """The figure as PNG (to look at) and PDF (to print or put in a paper), both atomically."""
+    safeio.save_figure(fig, path)
+    safeio.save_figure(fig, path.with_suffix(".pdf"))
 
 
 def mean_ci(values: Sequence[float], level: float = 0.95) -> tuple[float, float]:
@@ -103,6 +130,16 @@ def _curves(rows: list[dict], key: str) -> dict[str, dict[int, list[float]]]:
     return out
 
 
+def _trajectories_at(rows: list[dict]) -> dict[tuple[str, int], float]:
+    """(method, iteration) -> the training trajectories executed by then (mean over seeds; empty when the rows do
+    not say), the learning curves' x-axis: data, the cost active learning is about, not rounds."""
+    per: dict[tuple[str, int], list[float]] = defaultdict(list)
+    for r in rows:
+        if r.get("n_trajectories") not in (None, ""):
+            per[(r["method"], int(r["iteration"]))].append(float(r["n_trajectories"]))
+    return {k: float(np.mean(v)) for k, v in per.items()}
+
+
 def plot_learning_curves(rows: list[dict], path: Path, ceiling: Mapping[str, Any] | None = None,
                          model_only: Mapping[str, tuple[float, float]] | None = None) -> dict[str, tuple[float, str]]:
     """Fig. 5; with ``ceiling`` (see :func:`load_ceiling`) a dashed line at the ceiling's success and
@@ -120,14 +157,18 @@ def plot_learning_curves(rows: list[dict], path: Path, ceiling: Mapping[str, Any
     drawn: dict[str, tuple[float, str]] = {}
     # methods run on different seed sets (a sweep extended for some methods only) are told apart in the legend
     n_seeds = Counter(m for m, _s in {(r["method"], r["seed"]) for r in rows})
+    trajectories = _trajectories_at(rows)
     for ax, (key, title) in zip(axes, panels):
         for m, curve in sorted(_curves(rows, key).items()):
             its = sorted(curve)
+            xs = [trajectories.get((m, i), i) for i in its]
             mc = [mean_ci(curve[i]) for i in its]
             mean = np.array([a for a, _ in mc])
             half = np.array([b for _, b in mc])
-            ax.plot(its, mean, marker="o", ms=3, label=f"{m} ({n_seeds[m]} seed{'s' if n_seeds[m] != 1 else ''})")
-            ax.fill_between(its, np.clip(mean - half, 0, 1), np.clip(mean + half, 0, 1), alpha=0.2)
+            colour = method_colour(m)
+            ax.plot(xs, mean, marker="o", ms=3, color=colour,
+                    label=f"{m} ({n_seeds[m]} seed{'s' if n_seeds[m] != 1 else ''})")
+            ax.fill_between(xs, np.clip(mean - half, 0, 1), np.clip(mean + half, 0, 1), color=colour, alpha=0.2)
         if ceiling is not None and key in CEILING_PANELS:
             line = ax.axhline(float(ceiling[CEILING_PANELS[key]]), color="k", ls="--", lw=1.0,
                               label=ceiling_label(ceiling))
@@ -137,8 +178,8 @@ def plot_learning_curves(rows: list[dict], path: Path, ceiling: Mapping[str, Any
             line = ax.axhline(mean, color="0.35", ls=":", lw=1.5, label=f"{MODEL_ONLY} ± 95% CI")
             ax.axhspan(max(mean - half, 0.0), min(mean + half, 1.0), color="0.5", alpha=0.08)
             drawn[f"model_only:{key}"] = (float(line.get_ydata()[0]), str(line.get_label()))
-        ax.set_xlabel("iteration")
-        ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # iterations are whole numbers
+        ax.set_xlabel("training trajectories executed" if trajectories else "iteration")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # whole trajectories / iterations
         ax.set_title(title)
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
@@ -149,7 +190,7 @@ def plot_learning_curves(rows: list[dict], path: Path, ceiling: Mapping[str, Any
     legend_at = {"loc": "upper left", "bbox_to_anchor": (1.02, 1)} if beside else {"loc": "upper left"}
     axes[-1].legend(*axes[0].get_legend_handles_labels(), fontsize=8, **legend_at)
     fig.tight_layout()
-    safeio.save_figure(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
     return drawn
 
@@ -197,7 +238,7 @@ def plot_trajectory_types(table: list[dict], path: Path) -> dict[str, dict[str, 
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1, 1))
     plt.setp(ax.get_xticklabels(), rotation=20, ha="right", fontsize=8)
     fig.tight_layout()
-    safeio.save_figure(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
     return ratios
 
@@ -205,9 +246,9 @@ def plot_trajectory_types(table: list[dict], path: Path) -> dict[str, dict[str, 
 def test_outcome(row: Mapping[str, Any]) -> str:
     """One test problem's outcome (a key of :data:`OUTCOMES`) from its ``tests.csv`` / ``model_only.csv`` row."""
     if not is_true(row["found"]):
-        return "no plan found"
+        return "no_plan_found"
     if is_true(row["goal_reached"]):
-        return "goal reached"
+        return "goal_reached"
     return OUTCOME_OF_CATEGORY.get(str(row["category"]), "other")
 
 
@@ -236,10 +277,10 @@ def test_outcome_table(tests: list[dict], alone: list[dict]) -> list[dict]:
     table = []
     for m, it in order:
         shares = outcome_shares(groups[(m, it)])
-        found = 1.0 - shares["no plan found"]
+        found = 1.0 - shares["no_plan_found"]
         table.append({"method": m, "iteration": it, "n": len(groups[(m, it)]),
                       **{o: round(v, 4) for o, v in shares.items()},
-                      GIVEN_PLAN: round(shares["goal reached"] / found, 4) if found > 0 else ""})
+                      GIVEN_PLAN: round(shares["goal_reached"] / found, 4) if found > 0 else ""})
     return table
 
 
@@ -257,7 +298,7 @@ def plot_test_outcomes(table: list[dict], path: Path) -> None:
         bottom = np.zeros(len(rows))
         for o, colour in OUTCOMES.items():
             vals = np.array([float(r[o]) for r in rows])
-            ax.bar(range(len(rows)), vals, bottom=bottom, color=colour, label=o, width=0.8)
+            ax.bar(range(len(rows)), vals, bottom=bottom, color=colour, label=label(o), width=0.8)
             bottom += vals
         ax.set_xticks(range(len(rows)), labels, fontsize=8)
         ax.set_title(m, fontsize=10)
@@ -266,7 +307,7 @@ def plot_test_outcomes(table: list[dict], path: Path) -> None:
     axes[0][0].set_ylabel("share of test problems (all seeds)")
     axes[0][-1].legend(*axes[0][0].get_legend_handles_labels(), fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1))
     fig.tight_layout()
-    safeio.save_figure(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
 
 
@@ -275,7 +316,7 @@ def test_outcome_lines(table: list[dict]) -> list[str]:
     lines = ["What became of the test problems (share over all iterations and seeds; the last column is the share of "
              "found plans that reached the goal, which separates how good the admitted plans are from how many "
              "the precondition admits):", "",
-             "| method | problems | " + " | ".join(OUTCOMES) + f" | {GIVEN_PLAN} |",
+             "| method | problems | " + " | ".join(map(label, OUTCOMES)) + f" | {label(GIVEN_PLAN)} |",
              "|---|---:|" + "---:|" * (len(OUTCOMES) + 1)]
     for r in table:
         if r["iteration"] == "all":
@@ -289,21 +330,22 @@ def plot_calibration(rows: list[dict], path: Path) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), dpi=110)
     for m, curve in sorted(_curves(rows, "coverage95").items()):
         its = sorted(curve)
-        axes[0].plot(its, [np.mean(curve[i]) for i in its], marker="o", ms=3, label=m)
+        axes[0].plot(its, [np.mean(curve[i]) for i in its], marker="o", ms=3, color=method_colour(m), label=m)
     axes[0].axhline(0.95, color="k", ls="--", lw=0.8)
     axes[0].set_title("95% interval coverage (held-out target transitions,\nlabels as fitted: capped at label_max)",
                       fontsize=9)
     for m, curve in sorted(_curves(rows, "nll").items()):
         its = sorted(curve)
-        axes[1].plot(its, [np.mean(curve[i]) for i in its], marker="o", ms=3, label=m)
-    axes[1].set_title("mean negative log likelihood")
+        axes[1].plot(its, [np.mean(curve[i]) for i in its], marker="o", ms=3, color=method_colour(m), label=m)
+    axes[1].set_yscale("symlog", linthresh=1.0)  # an early fit's NLL can be 1e8 beside later ones near 0
+    axes[1].set_title("mean negative log likelihood (symlog)")
     for ax in axes:
         ax.set_xlabel("iteration")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # iterations are whole numbers
         ax.grid(alpha=0.3)
     axes[1].legend(fontsize=8)
     fig.tight_layout()
-    safeio.save_figure(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
 
 
@@ -421,7 +463,7 @@ def paired_table(rows: list[dict]) -> list[str]:
         return f"{mean:+.3f} (n=1: no CI)" if n == 1 else f"{mean:+.3f} ± {half:.3f}"
 
     def pval(p: float) -> str:
-        return "-" if math.isnan(p) else f"{p:.3f}"
+        return "-" if math.isnan(p) else ("< 0.001" if p < 0.001 else f"{p:.3f}")
 
     for r in rows:
         n = r["paired_seeds"]
@@ -520,6 +562,47 @@ def ceiling_line(ceiling: Mapping[str, Any], source: str | None = None) -> str:
             f"plan found {float(ceiling['found']):.3f}{n_test}.")
 
 
+class ReportError(ValueError):
+    """Runs that cannot be reported together; the message names them and what differs."""
+
+
+def method_config(cfg: Mapping[str, Any], method: str) -> dict:
+    """What decides ``method``'s results in a run of ``cfg``, less the seed: its runs of any seed, alone or beside
+    other methods, in one process or a sweep, are one curve exactly when these agree."""
+    c = comparable_config(cfg)
+    c.pop("seed", None)
+    c["methods"] = {method: comparable_config({"methods": cfg.get("methods") or {}, "method": method})["methods"]
+                    .get(method)}
+    return c
+
+
+def check_one_configuration_per_method(dirs: Sequence[Path]) -> None:
+    """Refuse runs of one method made with different configurations (an ablation beside the default, say): merged,
+    they would be reported as one curve. Runs without their ``config.json`` (committed CSVs) cannot be checked."""
+    seen: dict[str, tuple[str, dict, Path]] = {}
+    for d in dirs:
+        d = Path(d)
+        for f in ([d] if d.is_file() else sorted(d.rglob("results.csv"))):
+            cfg_path = f.parent.parent / "config.json"
+            if not cfg_path.is_file():
+                continue
+            try:
+                cfg = json.loads(cfg_path.read_text())
+            except (OSError, ValueError) as e:
+                raise ReportError(f"{cfg_path} is unreadable ({e}); the runs below it cannot be checked") from None
+            method = f.parent.name
+            mc = method_config(cfg, method)
+            key = json.dumps(mc, sort_keys=True)
+            if method not in seen:
+                seen[method] = (key, mc, cfg_path)
+            elif seen[method][0] != key:
+                a, b = flatten(seen[method][1]), flatten(mc)
+                diffs = [f"{k}: {a.get(k, '(absent)')!r} vs {b.get(k, '(absent)')!r}" for k in sorted(set(a) | set(b))
+                         if a.get(k, "(absent)") != b.get(k, "(absent)")]
+                raise ReportError(f"{method}: runs of different configurations ({seen[method][2]} and {cfg_path}: "
+                                  f"{'; '.join(diffs[:8])}); report them apart (one active.report call each)")
+
+
 def report(dirs: Sequence[Path], out: Path, reference: str | None = None,
            ceiling: Path | str | Mapping[str, Any] | None = None) -> dict:
     """Figures and tables of the runs below ``dirs``; ``reference`` and ``ceiling`` (a ladder.json, or
@@ -529,6 +612,7 @@ def report(dirs: Sequence[Path], out: Path, reference: str | None = None,
     if not results:
         raise FileNotFoundError(f"no results.csv under {[str(d) for d in dirs]}")
     pairs_for(methods_of(results), reference)  # an unknown reference fails before any plotting
+    check_one_configuration_per_method(dirs)
     ceiling_src = None
     if isinstance(ceiling, (str, Path)):
         ceiling_src, ceiling = str(ceiling), load_ceiling(Path(ceiling))
@@ -601,7 +685,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     try:
         made = report(args.dirs, args.out, reference=args.reference, ceiling=args.ceiling)
-    except (ValueError, FileNotFoundError) as e:
+    except (ValueError, FileNotFoundError, RunFileError) as e:
         raise SystemExit(f"error: {e}") from None
     print(made["table"])
     print(f"figures in {args.out}")

@@ -262,11 +262,11 @@ def test_test_outcomes_table_figure_and_summary(tmp_path):
     rows = {(r["method"], r["iteration"]): r for r in made["test_outcomes"]}
     it1 = rows[("active_balanced", "1")]
     assert it1["n"] == 4
-    assert (it1["goal reached"], it1["no plan found"], it1["spilled"], it1["clean pour, wrong amount"]) == (0.25,) * 4
+    assert (it1["goal_reached"], it1["no_plan_found"], it1["spilled"], it1["clean_pour_wrong_amount"]) == (0.25,) * 4
     everything = rows[("active_balanced", "all")]
-    assert everything["n"] == 8 and everything["goal reached"] == 0.375 and everything["stuck in plant"] == 0.125
+    assert everything["n"] == 8 and everything["goal_reached"] == 0.375 and everything["stuck_in_plant"] == 0.125
     alone = rows[("model alone (no MDE)", "all")]
-    assert alone["n"] == 2 and alone["goal reached"] == 0.5 and alone["no plan found"] == 0.0
+    assert alone["n"] == 2 and alone["goal_reached"] == 0.5 and alone["no_plan_found"] == 0.0
     assert sum(alone[o] for o in OUTCOMES) == pytest.approx(1.0)
     assert alone[GIVEN_PLAN] == 0.5 and everything[GIVEN_PLAN] == pytest.approx(0.375 / 0.75)
     assert rows[("active_balanced", "2")][GIVEN_PLAN] == pytest.approx(2 / 3, abs=1e-4)
@@ -281,3 +281,63 @@ def test_no_tests_file_no_outcome_figure(tmp_path):
     _write_run(tmp_path / "a", "active_balanced", 0, [0.2, 0.6])
     made = report([tmp_path / "a"], tmp_path / "rep")
     assert "test_outcomes" not in made and not (tmp_path / "rep" / "test_outcomes.png").exists()
+
+
+def test_each_method_has_one_colour_in_every_figure_and_curves_run_over_trajectories(tmp_path, monkeypatch):
+    """random_plan is the same colour in a report of two methods and in one of four; the x-axis is the number of
+    training trajectories executed (the data active learning is about), and every figure comes as PNG and PDF."""
+    import matplotlib.colors as mcolors
+
+    import active.report as rep
+
+    figures = []
+    real = rep.safeio.save_figure
+    monkeypatch.setattr(rep.safeio, "save_figure", lambda fig, path: (figures.append(fig), real(fig, path)))
+
+    def colour_of(methods, out):
+        for k, m in enumerate(methods):
+            d = out / m
+            d.mkdir(parents=True)
+            write_csv(d / "results.csv", [{"method": m, "seed": 0, "iteration": i + 1, "n_trajectories": 6 * (i + 1),
+                                           "test_success": 0.1 * k, "test_plan_found": 0.5} for i in range(3)])
+        figures.clear()
+        report([out], out / "rep")
+        ax = figures[0].axes[0]
+        lines = {ln.get_label().split(" (")[0]: ln for ln in ax.get_lines() if "seed" in ln.get_label()}
+        assert list(lines["random_plan"].get_xdata()) == [6, 12, 18] and "trajectories" in ax.get_xlabel()
+        assert (out / "rep" / "learning_curves.pdf").stat().st_size > 0
+        return mcolors.to_hex(lines["random_plan"].get_color())
+
+    two = colour_of(["active_balanced", "random_plan"], tmp_path / "two")
+    four = colour_of(["active_admission", "active_balanced", "model_plan", "random_plan"], tmp_path / "four")
+    assert two == four == rep.METHOD_COLOURS["random_plan"].lower()
+    assert rep.method_colour("my_method") == rep.method_colour("my_method") in rep.FALLBACK_COLOURS
+
+
+def test_runs_of_one_method_with_different_configurations_are_refused(tmp_path):
+    """An ablation beside the default, reported together, would be one curve: refused naming both folders and
+    what differs; seeds and the other methods of a run may differ."""
+    from active.report import ReportError
+    from active.run import compose_config
+
+    def run(folder, overrides, seed):
+        d = tmp_path / folder
+        (d / "random_plan").mkdir(parents=True)
+        (d / "config.json").write_text(json.dumps(compose_config(["experiment=tiny", f"seed={seed}", *overrides])))
+        _write_run(d / "random_plan", "random_plan", seed, [0.2, 0.4])
+
+    run("default0", [], 0)
+    run("default1", ["method=random_plan"], 1)
+    assert report([tmp_path / "default0", tmp_path / "default1"], tmp_path / "ok")["summary"][0]["seeds"] == 2
+    run("ablation", ["mde.label_max=0.15"], 2)
+    with pytest.raises(ReportError, match=r"random_plan: runs of different configurations .*mde.label_max: 0.15 vs 0.1"):
+        report([tmp_path], tmp_path / "rep")
+
+
+def test_p_values_below_a_thousandth_are_written_as_such():
+    from active.report import paired_table
+
+    row = {"method": "a", "reference": "b", "paired_seeds": 40, "diff_auc_success": 0.1, "diff_auc_success_ci95": 0.02,
+           "p_success": 1e-6, "diff_auc_plan_found": 0.0, "diff_auc_plan_found_ci95": 0.01, "p_plan_found": 0.5}
+    text = "\n".join(paired_table([row]))
+    assert "| < 0.001 |" in text and "| 0.000 |" not in text
