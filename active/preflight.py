@@ -15,6 +15,10 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
+from dynamics.config import DynamicsConfig
+from dynamics.train import cache_paths, is_cached
+from sim.skills import Obstacles, cup_boundary, to_world
+
 from .runlock import RunDirectoryError
 
 #: seeds feed numpy's SeedSequence (non-negative) and torch.manual_seed; 32 bits fit both everywhere
@@ -37,8 +41,6 @@ def max_dx(world: Any) -> tuple[float, dict[str, float]]:
     * ``tank``: the controlled cup at every problem start pose inside the tank interior, whose
       walls are ``sim.wall_cells`` cells thick (so they grow with dx).
     """
-    from sim.skills import cup_boundary, to_world
-
     wall_cells = world.sim_config(1).wall_cells
     limits = {"cup_walls": min(world.controlled_cup.wall, world.target_cup.wall) / MIN_WALL_CELLS}
     pts = to_world(cup_boundary(world, spacing=0.002), _start_poses(world)).reshape(-1, 2)
@@ -54,8 +56,6 @@ def check_geometry(world: Any) -> None:
     Same tests the executor makes when it starts a trajectory (``sim.execute``: the cup outline
     against the tank interior and the bodies), made here on the whole start range before compute.
     """
-    from sim.skills import Obstacles, cup_boundary, to_world
-
     sc = world.sim_config(1)
     dx, wall_cells = float(sc.dx), sc.wall_cells
     limit, limits = max_dx(world)
@@ -124,15 +124,13 @@ def check_writable(folders: Iterable[Path], what: str = "output directory", fiel
 
 
 def check_dynamics(dyn_cfg: Mapping[str, Any], world_cfg: Mapping[str, Any]) -> dict[str, Any]:
-    """Validate the dynamics config; if its model is not cached yet, the cache must be writable.
+    """Validate the dynamics config; if its model is not all in the cache yet, the cache must be writable (a
+    complete cache may be read-only).
 
     Returns :func:`dynamics.train.cache_paths` (where the data and the model are / will be).
     """
-    from dynamics.config import DynamicsConfig
-    from dynamics.train import cache_paths
-
     c = DynamicsConfig.from_dict(dyn_cfg)
     p = cache_paths(c, None, world_cfg)
-    if not p["checkpoint"].is_file():
+    if not is_cached(c, None, world_cfg):
         check_writable([p["root"]], what="dynamics cache", field="dynamics.cache_root")
     return p

@@ -328,6 +328,21 @@ def load_or_train(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_r
     return LearnedDynamics.load(ckpt, expected_hash=mh)
 
 
+def is_cached(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_root: str | Path | None = None,
+              world_cfg: Any = None) -> bool:
+    """Whether :func:`load_or_train` finds everything for ``cfg`` in the cache and writes nothing there: every
+    single model's checkpoint and metrics (an ensemble caches its members, never itself), and no unfinished
+    dataset. A run may then use a read-only cache."""
+    c = _as_config(cfg)
+    for m in single_models(c):
+        p = cache_paths(m, cache_root, world_cfg)
+        if not (p["checkpoint"].is_file() and (p["checkpoint"].parent / "metrics.json").is_file()):
+            return False
+        if p["dataset"].is_file() and _unfinished_data(p["dataset"]):
+            return False
+    return True
+
+
 def _load_or_train_ensemble(c: DynamicsConfig, p: dict[str, Any], **kwargs: Any) -> DynamicsEnsemble:
     """The ensemble of ``c``: each member loaded (or trained) and cached as a single model of its own."""
     members = [load_or_train(m, p["root"], **kwargs) for m in single_models(c)]

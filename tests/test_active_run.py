@@ -628,3 +628,19 @@ def test_derived_files_are_rewritten_from_the_state_and_a_damaged_checkpoint_is_
     ckpt.write_bytes(bytes(raw))
     with pytest.raises(RunFileError, match=rf"{ckpt} is damaged"):
         run_experiment(compose_config(tiny_overrides(cache)), out)
+
+
+def test_a_complete_dynamics_cache_is_not_probed_for_writing(cache, straight_run, tmp_path, monkeypatch):
+    """An ensemble caches its members one by one (never a model of its own hash): a complete cache is recognised as
+    such, so a read-only one works; an incomplete one must be writable. (A probe counter stands in for the file
+    system's refusal, which root does not get.)"""
+    import active.preflight as pf
+
+    probed = []
+    monkeypatch.setattr(pf, "check_writable", lambda folders, **kw: probed.append(kw.get("field")))
+    cfg = compose_config(tiny_overrides(cache))
+    pf.check_dynamics(cfg["dynamics"], cfg["world"])
+    assert probed == []  # the tiny run trained and cached every member
+    empty = compose_config(tiny_overrides(tmp_path / "empty-cache"))
+    pf.check_dynamics(empty["dynamics"], empty["world"])
+    assert probed == ["dynamics.cache_root"]
