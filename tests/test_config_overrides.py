@@ -131,11 +131,75 @@ def test_unknown_keys_are_refused_naming_the_key_and_the_allowed_ones():
 
 def test_unknown_keys_fail_before_any_compute(tmp_path):
     base = ["experiment=tiny", "wandb.mode=disabled", "progress=false", f"dynamics.cache_root={tmp_path / 'cache'}"]
-    for bad in ("+planner.bogus=1", "+planner.beta=1.0", "planner.n_candidates=7", "+experiment.bogus=1",
-                "+methods.active_balanced.acquisition.cc=0.2", "method=nope"):
-        with pytest.raises(ValueError):
+    for bad, match in (("+planner.bogus=1", r"^planner\.bogus = 1: not a key of planner"),
+                       ("+planner.beta=1.0", r"^planner\.beta = 1\.0: not a key of planner"),
+                       ("planner.n_candidates=7", r"^planner\.n_candidates = 7 differs from experiment\.candidates"),
+                       ("+experiment.bogus=1", r"^experiment\.bogus = 1: not a key of experiment"),
+                       ("+methods.active_balanced.acquisition.cc=0.2",
+                        r"^methods\.active_balanced\.acquisition\.cc = 0\.2: a parameter of no acquisition"),
+                       ("method=nope", r"^method = 'nope': allowed one of")):
+        with pytest.raises(ValueError, match=match):
             run_experiment(compose_config(base + [bad]), tmp_path / "out")
     assert not (tmp_path / "out").exists() and not (tmp_path / "cache").exists()
+
+
+def _refuse_writes_in(folder: Path, monkeypatch) -> None:
+    """Make ``folder`` (mode 0o500) refuse new files to root too, as the file system refuses them to everyone else:
+    root passes permission checks, so for root the write probe's file creation in it raises the EACCES a regular
+    user gets (``active.preflight.check_writable`` probes with ``os.open``)."""
+    import errno
+    import os
+
+    if os.geteuid() != 0:
+        return
+    real_open = os.open
+
+    def refusing(path, flags, *args, **kwargs):
+        if flags & os.O_CREAT and folder in Path(path).parents:
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(path))
+        return real_open(path, flags, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", refusing)
+
+
+def test_a_read_only_folder_is_refused_by_the_write_probe(tmp_path, monkeypatch):
+    """A folder without write permission is refused naming it and why, and the probe leaves no file behind (as
+    root too: see :func:`_refuse_writes_in`)."""
+    from active.preflight import check_writable
+    from active.runlock import RunDirectoryError
+
+    ro = tmp_path / "ro"
+    ro.mkdir(mode=0o500)
+    _refuse_writes_in(ro, monkeypatch)
+    with pytest.raises(RunDirectoryError, match=rf"^output directory {re.escape(str(ro))} is not writable "
+                                                r"\(Permission denied\); .*\(hydra\.run\.dir=\.\.\.\)"):
+        check_writable([ro])
+    with pytest.raises(ValueError, match=rf"^dynamics cache {re.escape(str(ro))} is not writable \(Permission denied\)"
+                                         r".*\(dynamics\.cache_root=\.\.\.\)"):
+        check_writable([ro], what="dynamics cache", field="dynamics.cache_root")
+    assert list(ro.iterdir()) == []
+
+
+def test_a_read_only_run_dir_override_gets_the_projects_message_before_hydra_starts(tmp_path, monkeypatch, capsys):
+    """``hydra.run.dir`` inside a folder without write permission: the CLI exits with code 2 and the project's
+    message naming the folder and the field, before Hydra creates anything (in-process, so that it runs as root
+    too: see :func:`_refuse_writes_in`)."""
+    import sys
+
+    import active.run
+
+    ro = tmp_path / "ro"
+    ro.mkdir(mode=0o500)
+    _refuse_writes_in(ro, monkeypatch)
+    target = ro / "run"
+    monkeypatch.setattr(sys, "argv", ["active.run", "experiment=tiny", "wandb.mode=disabled",
+                                      f"hydra.run.dir={target}"])
+    with pytest.raises(SystemExit) as done:
+        active.run.cli()
+    assert done.value.code == 2
+    err = capsys.readouterr().err
+    assert f"output directory {target} is not writable (Permission denied)" in err and "hydra.run.dir=" in err
+    assert not (target / ".hydra").exists() and not list(ro.rglob("*.tmp"))
 
 
 @pytest.mark.parametrize("name", EXPERIMENTS)

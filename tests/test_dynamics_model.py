@@ -57,7 +57,10 @@ def test_nominal_structure_at_initialisation():
     s = torch.tensor([[0.4, 0.2, 0.0, 1.0, 0.0], [0.4, 0.2, 0.0, 1.0, 0.0]])
     a = torch.tensor([[0.0, 0.3, 0.15], [1.0, 1.0, 0.5]])
     out = m.predict(s, a)
-    assert torch.allclose(out[0, :3], torch.tensor([0.3, 0.15, 0.0]), atol=0.5)  # unit output scales at init
+    # measured (torch seed 0): the move lands within 0.0154 of its target (0.0182 at most over seeds 0-5), the pour
+    # within 0.0109 of the current pose; 0.02 is a fifth of the 0.1 m move, so a net that ignores the target fails
+    assert (out[0, :3] - torch.tensor([0.3, 0.15, 0.0])).abs().max() < 0.02
+    assert (out[1, :3] - s[1, :3]).abs().max() < 0.02
     assert out[0, 3] > 0.5 and out[1, 3] > 0.5
 
 

@@ -110,7 +110,7 @@ def test_safe_cholesky_adds_jitter_then_gives_up():
     with pytest.warns(RuntimeWarning, match="jitter"):
         L = safe_cholesky(K, jitter=1e-6, max_tries=4)
     assert torch.allclose(L @ L.T, K, atol=1e-4)
-    with pytest.raises(NotPSDError):
+    with pytest.raises(NotPSDError, match=r"not positive definite even with jitter up to 1\.00e-04"):  # 1e-6 * 10^2
         safe_cholesky(-torch.eye(3, dtype=torch.float64), jitter=1e-6, max_tries=3)
     with pytest.raises(NotPSDError, match="NaN"):
         safe_cholesky(torch.full((2, 2), float("nan"), dtype=torch.float64))

@@ -104,9 +104,10 @@ def test_results_follow_request_order(pool, dynamics, standin_mde):
 def test_a_failing_request_raises_as_in_process_and_the_pool_goes_on(pool, dynamics):
     reqs = requests()
     bad = PlanRequest("plan", [0.4, 0.1, 0.0, 1.0, 0.0, 9.9], 0.5, seed=1)  # six state entries
-    with pytest.raises(ValueError) as here:
+    shape = r"start must be a state vector of 5 values .*got shape \(6,\)"
+    with pytest.raises(ValueError, match=shape) as here:
         in_process(dynamics, None, [reqs[0], bad])
-    with pytest.raises(ValueError) as there:
+    with pytest.raises(ValueError, match=shape) as there:
         pool.run([reqs[0], bad, reqs[1]], None)
     assert str(there.value) == str(here.value)
     assert pool.parallel

@@ -256,21 +256,47 @@ def test_errors_inside_callbacks_propagate_cleanly(toy):
         Planner(WrongShape()).plan(START, GOAL)
 
 
-def test_torch_threads_restored(toy):
+def _another_thread_count() -> int:
+    """A count other than torch's current one (a pytest-xdist worker runs torch on 1 thread: 2 there), so that
+    setting it is a change that can be seen, and restoring the old one is too."""
+    return 2 if torch.get_num_threads() == 1 else 1
+
+
+def test_torch_threads_holds_while_planning_and_is_restored(toy):
     robot, mde = toy
-    before = torch.get_num_threads()
-    Planner(robot, mde, PlannerConfig(torch_threads=1)).plan(START, GOAL, seed=0)
+
+    class Watched:  # the toy MDE, noting torch's thread count at each call the planner makes
+        def __init__(self):
+            self.seen = []
+
+        def predict(self, X):
+            self.seen.append(torch.get_num_threads())
+            return mde.predict(X)
+
+    before, n = torch.get_num_threads(), _another_thread_count()
+    watched = Watched()
+    r = Planner(robot, watched, PlannerConfig(torch_threads=n)).plan(START, GOAL, seed=0)
+    assert r.stats.mde_evaluations > 0 and watched.seen and set(watched.seen) == {n}
+    assert torch.get_num_threads() == before
+    watched.seen.clear()  # 0: torch's setting as it was
+    Planner(robot, watched, PlannerConfig(torch_threads=0)).plan(START, GOAL, seed=0)
+    assert watched.seen and set(watched.seen) == {before}
     assert torch.get_num_threads() == before
 
 
 def test_torch_threads_zero_leaves_torch_alone():
     """The one thread setter (task.threads) of the planner, the MDE and the dynamics training: 0 keeps torch's
-    setting, any other count holds inside the block only."""
-    before = torch.get_num_threads()
+    setting, any other count holds inside the block only (also when the block raises)."""
+    before, n = torch.get_num_threads(), _another_thread_count()
     with torch_threads(0):
         assert torch.get_num_threads() == before
-    with torch_threads(1):
-        assert torch.get_num_threads() == 1
+    with torch_threads(n):
+        assert torch.get_num_threads() == n != before
+    assert torch.get_num_threads() == before
+    with pytest.raises(ZeroDivisionError, match="inside"):
+        with torch_threads(n):
+            assert torch.get_num_threads() == n
+            raise ZeroDivisionError("inside the block")
     assert torch.get_num_threads() == before
     with pytest.raises(ValueError, match="0 to leave torch's setting alone"):
         with torch_threads(-1):
