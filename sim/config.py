@@ -1,4 +1,4 @@
-"""Alias of :mod:`sim.engine.config`, the module's home: keeps ``sim.config`` importing (attributes set through either
+"""Alias of :mod:`sim.engine.config`, the module's home: ``sim.config`` imports it (attributes set through either
 name are the same) until the callers outside sim/ import the new path."""
 
 import sys

@@ -14,10 +14,11 @@ What:
 * ``refine_pours(...)``: projected Adam steps (normalised parameter space, clipped to the world's
   skill ranges) on (soft_in_target - goal)^2 + spill_weight * soft_spill^2, batched.
 
-Model (see ``sim.diff_mpm`` and ``sim.diff_schedule``): the production physics and constants in a
-differentiable solver (f64 by default); the cup follows the production pour schedule evaluated
-continuously in time (so theta and hold enter smoothly); the water starts as production samples it
-(``sample_water``, seed [sim.seed, env]) at rest in the upright cup, ``v_ctrl`` of the full fill.
+Model (see ``sim.engine.diff_mpm`` and ``sim.diff_schedule``): the production physics and constants in a
+differentiable solver (f64 by default), built for the source world by :func:`source_solver`, the one place that
+turns the world into the solver's geometry; the cup follows the production pour schedule evaluated continuously in
+time (so theta and hold enter smoothly); the water starts as production samples it (``sample_water``, seed
+[sim.seed, env]) at rest in the upright cup, ``v_ctrl`` of the full fill.
 Gradient w.r.t. x and y includes the initial particle positions (they move with the cup).
 
 Outcomes: the soft inside-weight of a particle is a product of C2 ramps, one per side of the cup's
@@ -62,13 +63,12 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from .diff_schedule import (PARAMS, chain_to_params, cup_trajectory, horizon_ticks, production_ticks,
-                            substeps_per_tick)
+from .diff_schedule import PARAMS, chain_to_params, cup_trajectory, horizon_ticks, production_ticks, substeps_per_tick
 from .engine.config import ConfigError
 from .engine.diff_mpm import DiffMPM
 from .engine.scene import Body, EnvSpec, WaterBlock, sample_water
 from .skills import Obstacles, cup_boundary, plan_schedule, pour, start_overlap
-from .world import WorldConfig
+from .world import CTRL, WorldConfig
 
 log = logging.getLogger(__name__)
 
@@ -149,6 +149,18 @@ def _gib(n: float) -> str:
     return f"{n / 2**30:.2f} GiB"
 
 
+def source_solver(cfg: WorldConfig, n_envs: int, n_particles: int, max_substeps: int, checkpoint_every: int,
+                  precision: str = "f64", arch: str = "cpu", soft_width: float | None = None) -> DiffMPM:
+    """The differentiable solver of the source world: the controlled cup (body ``CTRL``) driven per substep, the
+    target cup standing at its pose, and the two cups' interiors as the regions (``WorldConfig.volume_regions``:
+    the controlled cup's in its frame at the end of the rollout, the target cup's in its own)."""
+    bodies = [Body("cup", shapes=cfg.controlled_cup.shapes()),
+              Body("target", pose=cfg.target_pose(), shapes=cfg.target_cup.shapes())]
+    _, lo, hi = cfg.volume_regions()
+    return DiffMPM(cfg.sim_config(n_envs), bodies, n_particles, max_substeps, checkpoint_every, driven=(CTRL,),
+                   regions=list(zip(lo.tolist(), hi.tolist())), precision=precision, arch=arch, soft_width=soft_width)
+
+
 class DifferentiablePour:
     """B source-world pours, differentiable w.r.t. (x, y, theta, hold); see the module docstring."""
 
@@ -182,19 +194,16 @@ class DifferentiablePour:
             raise ConfigError(f"checkpoint_every = {checkpoint_every!r}: allowed an integer >= 1 (substeps)")
         self.K = int(min(K, self.max_substeps))
         sc = cfg.sim_config(1)
-        if sc.box_normals != "analytic":
-            raise ConfigError(f"sim.box_normals = {sc.box_normals!r}: the differentiable solver allows only "
-                              "'analytic' (a central-difference normal makes its rollouts non-smooth at the "
-                              "finite-difference scale; BENCHMARKS.md, session 7)")
         self.dx, self.ppc, self.seed, self.jitter = sc.dx, sc.ppc, sc.seed, sc.jitter
         self._local_water = self._sample_local(1.0)
         self.N = max(len(w) for w in self._local_water)
         self.precision = precision
         budget = 0.5 * available_memory() if memory_budget is None else float(memory_budget)
         self._check_memory(budget, sc.res, sc.boundary_density)
-        self.sim = DiffMPM(cfg, self.B, self.N, self.max_substeps, self.K, precision=precision, arch=arch,
-                           soft_width=soft_width)
+        self.sim = source_solver(cfg, self.B, self.N, self.max_substeps, self.K, precision=precision, arch=arch,
+                                 soft_width=soft_width)
         self._boundary = cup_boundary(cfg)
+        self._target_pose = np.asarray(cfg.target_pose(), float)
         self.last_timing: dict[str, float] = {}
 
     # ------------------------------------------------------------------ set-up checks
@@ -203,7 +212,8 @@ class DifferentiablePour:
         B, N, S = self.B, self.N, self.max_substeps
 
         def need(b: int, s: int, k: int) -> int:
-            return DiffMPM.memory_bytes(b, N, s, k, res, self.precision, boundary_density=boundary_density)
+            return DiffMPM.memory_bytes(b, N, s, k, res, self.precision, boundary_density=boundary_density,
+                                        n_driven=1, n_regions=2)
 
         self.memory_estimate = need(B, S, self.K)
         if self.memory_estimate <= budget:
@@ -337,10 +347,11 @@ class DifferentiablePour:
         x0, n = self._initial(p, v)
         stuck = self.stuck(p)
         t1 = time.perf_counter()
-        soft_c, soft_t, x_end = self.sim.run_forward(x0, n, traj.pose, traj.vel, end_pose)
+        regions = np.stack([end_pose, np.broadcast_to(self._target_pose, end_pose.shape)], 1)  # volume_regions' order
+        soft, x_end = self.sim.run_forward(x0, n, traj.pose[:, :, None], traj.vel[:, :, None], regions)
         t2 = time.perf_counter()
         hard_c, hard_t = self._hard(x_end.astype(float), n, end_pose)
-        soft_c, soft_t = soft_c.astype(float), soft_t.astype(float)
+        soft_c, soft_t = soft[:, 0].astype(float), soft[:, 1].astype(float)
         nan = ~np.isfinite(x_end).all(axis=(1, 2)) | ~np.isfinite(soft_c) | ~np.isfinite(soft_t)
         out = PourOutcome(in_target_soft=soft_t, in_ctrl_soft=soft_c, spill_soft=1.0 - soft_c - soft_t,
                           in_target=hard_t, in_ctrl=hard_c, spill=1.0 - hard_c - hard_t, stuck=stuck, nan=nan,
@@ -351,9 +362,10 @@ class DifferentiablePour:
             out.value = value
             if wrt:
                 # spill = 1 - ctrl - target
-                g_pose, g_vel, g_end, g_x0 = self.sim.run_backward(-d_s, d_t - d_s)
+                g_pose, g_vel, g_regions, g_x0 = self.sim.run_backward(np.stack([-d_s, d_t - d_s], 1))
                 t3 = time.perf_counter()
-                g_pose[:, -1] += g_end  # the controlled-cup region moves with the cup's final pose
+                g_pose, g_vel = g_pose[:, :, 0], g_vel[:, :, 0]
+                g_pose[:, -1] += g_regions[:, 0]  # the controlled-cup region moves with the cup's final pose
                 g = chain_to_params(self.cfg, traj, g_pose, g_vel)
                 g[:, :2] += g_x0.sum(1)  # the water starts in the cup: it moves with (x, y)
                 for j, name in enumerate(PARAMS):

@@ -1,4 +1,4 @@
-"""Alias of :mod:`sim.engine.diff_mpm`, the module's home: keeps ``sim.diff_mpm`` importing (attributes set through either
+"""Alias of :mod:`sim.engine.diff_mpm`, the module's home: ``sim.diff_mpm`` imports it (attributes set through either
 name are the same) until the callers outside sim/ import the new path."""
 
 import sys

@@ -1,4 +1,4 @@
-"""Alias of :mod:`sim.engine.motion`, the module's home: keeps ``sim.motion`` importing (attributes set through either
+"""Alias of :mod:`sim.engine.motion`, the module's home: ``sim.motion`` imports it (attributes set through either
 name are the same) until the callers outside sim/ import the new path."""
 
 import sys

@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 from taichi.lang.field import Field
 
-from sim.engine.config import ConfigError
-from sim.diff import PARAMS, DifferentiablePour, refine_pours
-from sim.engine.diff_mpm import DiffMPM
+from sim.diff import PARAMS, DifferentiablePour, refine_pours, source_solver
 from sim.diff_schedule import production_ticks, tick_poses
+from sim.engine.config import ConfigError
+from sim.engine.diff_mpm import DiffMPM
 from sim.skills import Obstacles, cup_boundary, plan_schedule, pour
 from sim.world import WorldConfig
 
@@ -168,7 +168,7 @@ def test_horizon_that_cannot_fit_even_with_checkpointing_fails_before_compute(cf
 
 
 def test_memory_estimate_is_o_of_t_over_k_plus_k():
-    kw = dict(n_envs=8, n_particles=140, substeps=16875, res=(60, 60), boundary_density=True)
+    kw = dict(n_envs=8, n_particles=140, substeps=16875, res=(60, 60), boundary_density=True, n_driven=1, n_regions=2)
     best = DiffMPM.memory_bytes(checkpoint_every=130, **kw)
     assert DiffMPM.memory_bytes(checkpoint_every=16875, **kw) > 10 * best
     assert DiffMPM.memory_bytes(checkpoint_every=1, **kw) > 5 * best
@@ -186,17 +186,17 @@ def _field_bytes(sim: DiffMPM) -> int:
 
 @pytest.mark.parametrize("boundary_density", [True, False])
 def test_memory_estimate_is_what_the_fields_allocate(cfg, boundary_density):
-    """The estimate counts every field as allocated: the density-estimate grid only with
-    sim.boundary_density, adjoints for the differentiated fields only (not for the checkpoints)."""
+    """The estimate counts every field as allocated (the colliders' few hundred bytes aside): the density-estimate
+    grid only with sim.boundary_density, adjoints for the differentiated fields only (not for the checkpoints)."""
     world = WorldConfig.from_mapping({**cfg.__dict__, "sim": dict(cfg.sim, boundary_density=boundary_density),
                                       "controlled_cup": cfg.controlled_cup.__dict__,
                                       "target_cup": cfg.target_cup.__dict__})
     B, N, S, K = 3, 50, 40, 7
-    sim = DiffMPM(world, B, N, S, K)
+    sim = source_solver(world, B, N, S, K)
     try:
         assert (sim.grid_rho is not None) == boundary_density
         host = S * B * 6 * 8 * 3
-        est = DiffMPM.memory_bytes(B, N, S, K, sim.res, boundary_density=boundary_density)
+        est = DiffMPM.memory_bytes(B, N, S, K, sim.res, boundary_density=boundary_density, n_driven=1, n_regions=2)
         assert _field_bytes(sim) == est - host
     finally:
         sim.close()

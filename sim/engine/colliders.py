@@ -74,6 +74,9 @@ class Colliders:
         self.shape_hi = ti.Vector.field(2, ti.f32)
         fb.dense(ti.ij, (self.B, self.NS)).place(self.shape_kind, self.shape_body, self.shape_c, self.shape_cs,
                                                  self.shape_size, self.shape_lo, self.shape_hi)
+        #: (first shape, end) of each body when every environment holds the same bodies and the query unrolls its
+        #: loop over their shapes at compile time (``fix_layout``); None: the loop reads the counts at run time
+        self.fixed_layout: list[tuple[int, int]] | None = None
 
     # ================================================================== host side
     def empty_layout(self) -> dict[str, np.ndarray]:
@@ -86,7 +89,8 @@ class Colliders:
                 "body_first_shape": np.zeros((B, NB), np.int32), "body_nshapes": np.zeros((B, NB), np.int32),
                 "state": np.zeros((B, NB, 6), np.float32)}
 
-    def pack_env(self, out: dict[str, np.ndarray], b: int, bodies: Sequence[Body], placed_later: Sequence[int] = ()) -> None:
+    def pack_env(self, out: dict[str, np.ndarray], b: int, bodies: Sequence[Body],
+                 placed_later: Sequence[int] = ()) -> None:
         """Lay environment b's bodies out in ``out`` (``empty_layout``): poses at rest, shapes body by body.
 
         Checks the counts against the capacities and every collider's outline at its pose against the domain
@@ -115,6 +119,15 @@ class Colliders:
                 out["shape_size"][b, s] = sh.size
                 out["shape_lo"][b, s], out["shape_hi"][b, s] = sh.body_bounds(CULL_MARGIN)
                 s += 1
+
+    def fix_layout(self, layout: dict[str, np.ndarray]) -> None:
+        """Unroll the query's loop over each body's shapes at compile time, for ``layout``'s bodies, which must be
+        every environment's. Why: Taichi's reverse mode cannot differentiate a loop whose bounds are read at run
+        time (the differentiable solver's case); the shapes evaluated, and so the results, are the same."""
+        first, count = layout["body_first_shape"], layout["body_nshapes"]
+        if (first != first[0]).any() or (count != count[0]).any():
+            raise ValueError("fix_layout: the environments hold different bodies")
+        self.fixed_layout = [(int(f), int(f + n)) for f, n in zip(first[0], count[0])]
 
     def write(self, layout: dict[str, np.ndarray]) -> None:
         """Load the shapes of ``layout`` (``pack_env``) and set every body at rest at its pose."""
@@ -218,14 +231,25 @@ class Colliders:
                 o = frames.origin(b, t, k)
                 if ns > 0 and (p - o).norm_sqr() < r * r:
                     q = to_frame(p, o, frames.rotation(b, t, k))
-                    s0 = self.body_first_shape[b, k]
-                    for s in range(s0, s0 + ns):
-                        lo, hi = self.shape_lo[b, s], self.shape_hi[b, s]
-                        if lo[0] < q[0] and q[0] < hi[0] and lo[1] < q[1] and q[1] < hi[1]:
-                            ps = self.shape_sdf(b, s, q)
-                            if ps < phi:
-                                phi = ps
-                                idx = s
+                    if ti.static(self.fixed_layout):
+                        for s in ti.static(range(*self.fixed_layout[k])):
+                            phi, idx = self._deeper(b, s, q, phi, idx)
+                    else:
+                        s0 = self.body_first_shape[b, k]
+                        for s in range(s0, s0 + ns):
+                            phi, idx = self._deeper(b, s, q, phi, idx)
+        return phi, idx
+
+    @ti.func
+    def _deeper(self, b, s, q, phi, idx):
+        """(shape s's distance at q, s) where q is inside s's bounds and deeper inside s than ``phi``; else
+        (phi, idx)."""
+        lo, hi = self.shape_lo[b, s], self.shape_hi[b, s]
+        if lo[0] < q[0] and q[0] < hi[0] and lo[1] < q[1] and q[1] < hi[1]:
+            ps = self.shape_sdf(b, s, q)
+            if ps < phi:
+                phi = ps
+                idx = s
         return phi, idx
 
     @ti.func
