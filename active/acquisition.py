@@ -95,8 +95,9 @@ class TrajectoryStraddle(TrajectoryAcquisition):
     threshold: score_t = kappa sigma_t - |mu_t - d_max|, maximised: a trajectory whose most
     informative step sits near the boundary mu = d_max with large uncertainty is preferred."""
 
-    def __init__(self, model: Model, d_max: float = 0.07, kappa: float = 1.96, gamma: float = 1.0,
-                 observation_noise: bool = True) -> None:
+    def __init__(
+        self, model: Model, d_max: float = 0.07, kappa: float = 1.96, gamma: float = 1.0, observation_noise: bool = True
+    ) -> None:
         super().__init__(model, gamma, observation_noise)
         if d_max <= 0:
             raise ValueError(f"acquisition.d_max = {d_max}: allowed > 0")
@@ -135,8 +136,11 @@ class TrajectoryThompson(TrajectoryAcquisition):
         """One standard normal per step (batch x T), each trajectory's from a generator seeded by its features."""
         rows = []
         for traj in X:
-            digest = hashlib.blake2b(traj.detach().cpu().double().numpy().tobytes(), digest_size=8,
-                                     key=self.seed.to_bytes(8, "little", signed=True)).digest()
+            digest = hashlib.blake2b(
+                traj.detach().cpu().double().numpy().tobytes(),
+                digest_size=8,
+                key=self.seed.to_bytes(8, "little", signed=True),
+            ).digest()
             gen = torch.Generator().manual_seed(int.from_bytes(digest, "little") & (2**63 - 1))
             rows.append(torch.randn(X.shape[-2], generator=gen, dtype=X.dtype))
         return torch.stack(rows).to(X.device)
@@ -170,19 +174,28 @@ class TrajectoryAdmissionGain(TrajectoryAcquisition):
     ``model`` must offer ``covariance(Xa, Xb)`` (the MDE's :class:`mde.gp.MarginalModel` does).
     """
 
-    def __init__(self, model: Model, reference: Tensor | None = None, d_max: float = 0.07, beta: float = 2.0,
-                 observation_noise: bool = True) -> None:
+    def __init__(
+        self,
+        model: Model,
+        reference: Tensor | None = None,
+        d_max: float = 0.07,
+        beta: float = 2.0,
+        observation_noise: bool = True,
+    ) -> None:
         super().__init__(model, 1.0, observation_noise)
         if d_max <= 0:
             raise ValueError(f"acquisition.d_max = {d_max}: allowed > 0")
         if not callable(getattr(model, "covariance", None)):
-            raise TypeError(f"{type(self).__name__} needs a model with covariance(Xa, Xb) (e.g. the MDE's "
-                            f"marginal_model); {type(model).__name__} has none")
+            raise TypeError(
+                f"{type(self).__name__} needs a model with covariance(Xa, Xb) (e.g. the MDE's "
+                f"marginal_model); {type(model).__name__} has none"
+            )
         self.d_max, self.beta = float(d_max), float(beta)
         self.reference = None if reference is None else torch.as_tensor(reference, dtype=torch.float64)
         if self.reference is not None and (self.reference.dim() != 2 or not len(self.reference)):
-            raise ValueError(f"acquisition.reference: expected a non-empty r x d matrix, got shape "
-                             f"{tuple(self.reference.shape)}")
+            raise ValueError(
+                f"acquisition.reference: expected a non-empty r x d matrix, got shape {tuple(self.reference.shape)}"
+            )
         self._now: tuple[Tensor, Tensor] | None = None  # (mean, predictive variance) at the reference
 
     def _reference_now(self, C: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -223,6 +236,11 @@ class TrajectoryAdmissionGain(TrajectoryAcquisition):
 
 
 #: the built-in acquisitions by their name in configs/acquisition/
-ACQUISITIONS = {"alpha": DiscountedMaxUCB, "lcb": DiscountedMaxLCB, "straddle": TrajectoryStraddle,
-                "variance": TrajectoryVariance, "thompson": TrajectoryThompson,
-                "admission": TrajectoryAdmissionGain}
+ACQUISITIONS = {
+    "alpha": DiscountedMaxUCB,
+    "lcb": DiscountedMaxLCB,
+    "straddle": TrajectoryStraddle,
+    "variance": TrajectoryVariance,
+    "thompson": TrajectoryThompson,
+    "admission": TrajectoryAdmissionGain,
+}

@@ -31,8 +31,10 @@ def acquisition_factory(acq_cfg: Mapping[str, Any], exp: ExperimentConfig):
     takes = _keywords(cls) - {"model"}
     unknown = sorted(set(cfg) - {"_target_", "_partial_"} - takes)
     if unknown:  # refused before compute: a partial would only fail when the first candidate is scored
-        raise ValueError(f"acquisition.{unknown[0]} = {cfg[unknown[0]]!r}: not a parameter of {cfg['_target_']}; "
-                         f"allowed {sorted(takes)}")
+        raise ValueError(
+            f"acquisition.{unknown[0]} = {cfg[unknown[0]]!r}: not a parameter of {cfg['_target_']}; "
+            f"allowed {sorted(takes)}"
+        )
     if "gamma" in cfg:
         check_gamma(cfg["gamma"])
     cfg["_partial_"] = True  # a method's own spec need not say it
@@ -70,8 +72,10 @@ def acquisition_class(target: str, where: str) -> type:
     try:
         return get_class(target)
     except Exception as e:
-        raise ValueError(f"{where}._target_ = {target!r} cannot be imported ({e}); built in: "
-                         f"{sorted(c.__module__ + '.' + c.__name__ for c in ACQUISITIONS.values())}") from None
+        raise ValueError(
+            f"{where}._target_ = {target!r} cannot be imported ({e}); built in: "
+            f"{sorted(c.__module__ + '.' + c.__name__ for c in ACQUISITIONS.values())}"
+        ) from None
 
 
 def check_method_acquisition(name: str, method: Any, make_acquisition: Any) -> None:
@@ -84,15 +88,19 @@ def check_method_acquisition(name: str, method: Any, make_acquisition: Any) -> N
         takes = _keywords(acquisition_class(spec["_target_"], f"methods.{name}.acquisition")) - {"model"}
         unknown = sorted(set(spec) - {"_target_", "_partial_"} - takes)
         if unknown:
-            raise ValueError(f"methods.{name}.acquisition: {unknown} is not a parameter of {spec['_target_']}; "
-                             f"it takes {sorted(takes)}")
+            raise ValueError(
+                f"methods.{name}.acquisition: {unknown} is not a parameter of {spec['_target_']}; "
+                f"it takes {sorted(takes)}"
+            )
         return
     kwargs = set(spec)
     built_in = set().union(*(_keywords(cls) for cls in ACQUISITIONS.values()))
     unknown = sorted(kwargs - set(make_acquisition.accepts) - built_in)
     if unknown:
-        raise ValueError(f"methods.{name}.acquisition: {unknown} is a parameter of no acquisition; "
-                         f"{make_acquisition.target} takes {sorted(make_acquisition.accepts)}")
+        raise ValueError(
+            f"methods.{name}.acquisition: {unknown} is a parameter of no acquisition; "
+            f"{make_acquisition.target} takes {sorted(make_acquisition.accepts)}"
+        )
 
 
 def _keywords(cls: type) -> frozenset[str]:

@@ -26,7 +26,16 @@ if TYPE_CHECKING:  # the report reads these files without importing the planner 
 log = logging.getLogger(__name__)
 
 FILE = "model_only.csv"
-FIELDS = ["seed", "problem", "goal", "found", "goal_reached", "category", "final_spill", "digest"]  # needs.OUTCOME_FIELDS
+FIELDS = [
+    "seed",
+    "problem",
+    "goal",
+    "found",
+    "goal_reached",
+    "category",
+    "final_spill",
+    "digest",
+]  # needs.OUTCOME_FIELDS
 
 
 def load(path: Path, digest: str, n: int) -> list[dict] | None:
@@ -40,8 +49,9 @@ def load(path: Path, digest: str, n: int) -> list[dict] | None:
     return None
 
 
-def measure(pool: "PlanPool", executor: "PouringExecutor", problems: Mapping[int, Sequence["Problem"]],
-            d_max: float) -> dict[int, list[dict]]:
+def measure(
+    pool: "PlanPool", executor: "PouringExecutor", problems: Mapping[int, Sequence["Problem"]], d_max: float
+) -> dict[int, list[dict]]:
     """Plan every seed's test problems with the model alone (one planning batch) and execute the plans
     found (one target-world simulation); returns seed -> one row per problem (without the digest)."""
     from planner.pool import PlanRequest  # the report imports this module without the planner
@@ -50,16 +60,28 @@ def measure(pool: "PlanPool", executor: "PouringExecutor", problems: Mapping[int
     from .seeds import derive_seed
 
     seeds = list(problems)
-    groups = [([PlanRequest("plan", p.start, p.goal, d_max=d_max, seed=derive_seed(s, "model-only-plan", k))
-                for k, p in enumerate(problems[s])], None) for s in seeds]
+    groups = [
+        (
+            [
+                PlanRequest("plan", p.start, p.goal, d_max=d_max, seed=derive_seed(s, "model-only-plan", k))
+                for k, p in enumerate(problems[s])
+            ],
+            None,
+        )
+        for s in seeds
+    ]
     planned = pool.run_groups(groups, errors="record")
     found = {s: [r.trajectory if r.found else None for r in res] for s, res in zip(seeds, planned)}
     idx = {s: [k for k, t in enumerate(found[s]) if t is not None] for s in seeds}
-    needs = [SimNeed([problems[s][k] for k in idx[s]], [found[s][k].actions for k in idx[s]], len(problems[s]))
-             for s in seeds]
+    needs = [
+        SimNeed([problems[s][k] for k in idx[s]], [found[s][k].actions for k in idx[s]], len(problems[s]))
+        for s in seeds
+    ]
     executed = execute_needs(executor, needs)
-    return {s: [{"seed": s, **row} for row in problem_outcomes(problems[s], dict(zip(idx[s], results)))]
-            for s, results in zip(seeds, executed)}
+    return {
+        s: [{"seed": s, **row} for row in problem_outcomes(problems[s], dict(zip(idx[s], results)))]
+        for s, results in zip(seeds, executed)
+    }
 
 
 def save(path: Path, rows: list[dict], digest: str) -> list[dict]:

@@ -63,8 +63,9 @@ class ExperimentConfig:
     fallback: str = "random_actions"
 
     @classmethod
-    def from_mapping(cls, data: Mapping[str, Any], method: str = "all",
-                     registry: Mapping[str, Any] | None = None) -> "ExperimentConfig":
+    def from_mapping(
+        cls, data: Mapping[str, Any], method: str = "all", registry: Mapping[str, Any] | None = None
+    ) -> "ExperimentConfig":
         """Checked settings; ``method`` (not ``all``) narrows ``methods`` to it; ``registry`` is the run's
         ``methods:`` node (default: the shipped methods), which every method name must be in."""
         known = {f.name for f in fields(cls)}
@@ -85,8 +86,16 @@ class ExperimentConfig:
             raise ValueError(f"experiment.methods is empty: allowed a list from {sorted(registry or METHODS)}")
         for m in self.methods:
             check_method(m, registry)
-        for name in ("iterations", "trajectories_per_iteration", "refit_every", "candidates", "test_problems",
-                     "random_actions_length", "calibration_trajectories", "planner_propagation_budget"):
+        for name in (
+            "iterations",
+            "trajectories_per_iteration",
+            "refit_every",
+            "candidates",
+            "test_problems",
+            "random_actions_length",
+            "calibration_trajectories",
+            "planner_propagation_budget",
+        ):
             v = getattr(self, name)
             if not isinstance(v, int) or v < 1:
                 raise ValueError(f"experiment.{name} = {v!r}: allowed an integer >= 1")
@@ -105,15 +114,21 @@ class ExperimentConfig:
         if not isinstance(self.known_obstacles, bool):
             raise ValueError(f"experiment.known_obstacles = {self.known_obstacles!r}: allowed true or false")
         if self.plan_goal_tol is not None and not 0 < self.plan_goal_tol <= 1:
-            raise ValueError(f"experiment.plan_goal_tol = {self.plan_goal_tol!r}: allowed null or a fraction in (0, 1] "
-                             f"(at most world.problems.tolerance)")
+            raise ValueError(
+                f"experiment.plan_goal_tol = {self.plan_goal_tol!r}: allowed null or a fraction in (0, 1] "
+                f"(at most world.problems.tolerance)"
+            )
         # against the goal band and the world's tolerance: active.planner_setup.build_planner_config
         if self.plan_accept_tol is not None and not 0 < self.plan_accept_tol <= 1:
-            raise ValueError(f"experiment.plan_accept_tol = {self.plan_accept_tol!r}: allowed null or a fraction in "
-                             f"(0, 1] (from the planner's goal band to world.problems.tolerance)")
+            raise ValueError(
+                f"experiment.plan_accept_tol = {self.plan_accept_tol!r}: allowed null or a fraction in "
+                f"(0, 1] (from the planner's goal band to world.problems.tolerance)"
+            )
         if self.plan_spill_limit is not None and not 0 <= self.plan_spill_limit <= 1:
-            raise ValueError(f"experiment.plan_spill_limit = {self.plan_spill_limit!r}: allowed null or a fraction "
-                             f"in [0, 1] (at most world.problems.max_spill)")
+            raise ValueError(
+                f"experiment.plan_spill_limit = {self.plan_spill_limit!r}: allowed null or a fraction "
+                f"in [0, 1] (at most world.problems.max_spill)"
+            )
         if self.fallback not in ALLOWED_FALLBACKS:
             raise ValueError(f"experiment.fallback = {self.fallback!r}: allowed one of {ALLOWED_FALLBACKS}")
         if not self.planner_time_budget > 0:

@@ -50,8 +50,11 @@ def config_differences(old: Mapping[str, Any] | None, new: Mapping[str, Any], li
     if old is None:
         return []
     a, b = flatten(comparable_config(old)), flatten(comparable_config(new))
-    diffs = [f"{k}: {a.get(k, '(absent)')!r} -> {b.get(k, '(absent)')!r}" for k in sorted(set(a) | set(b))
-             if a.get(k, "(absent)") != b.get(k, "(absent)")]
+    diffs = [
+        f"{k}: {a.get(k, '(absent)')!r} -> {b.get(k, '(absent)')!r}"
+        for k in sorted(set(a) | set(b))
+        if a.get(k, "(absent)") != b.get(k, "(absent)")
+    ]
     return diffs[:limit] + ([f"... and {len(diffs) - limit} more"] if len(diffs) > limit else [])
 
 

@@ -52,8 +52,10 @@ def read_csv(path: Path) -> list[dict[str, str]]:
         raise RunFileError(f"{path} is not a readable CSV ({type(e).__name__}: {str(e)[:160]})") from None
     for k, row in enumerate(rows):
         if None in row or None in row.values():
-            raise RunFileError(f"{path} line {k + 2} has {'more' if None in row else 'fewer'} fields than its header "
-                               f"({len(reader.fieldnames or [])}): the file is truncated or damaged")
+            raise RunFileError(
+                f"{path} line {k + 2} has {'more' if None in row else 'fewer'} fields than its header "
+                f"({len(reader.fieldnames or [])}): the file is truncated or damaged"
+            )
     return rows
 
 

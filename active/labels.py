@@ -14,8 +14,9 @@ import torch
 from task import state_distance
 
 
-def label_transitions(dynamics: Any, s: np.ndarray, a: np.ndarray, s_next: np.ndarray,
-                      weights: Mapping[str, float]) -> np.ndarray:
+def label_transitions(
+    dynamics: Any, s: np.ndarray, a: np.ndarray, s_next: np.ndarray, weights: Mapping[str, float]
+) -> np.ndarray:
     """MDE labels d(f_hat(s, a), s')."""
     with torch.no_grad():
         pred = dynamics.predict(torch.as_tensor(s, dtype=torch.float32), torch.as_tensor(a, dtype=torch.float32))

@@ -60,8 +60,13 @@ from .seeds import derive_seed  # noqa: E402
 log = logging.getLogger(__name__)
 
 #: targets of the measurable-effect issue (the default world on a CPU)
-TARGETS = {"reproducibility.max_std": ("<=", 0.010), "source_model_only.found": (">=", 0.90),
-           "source_model_only.success": (">=", 0.80), "ceiling.success": (">=", 0.70), "ceiling.found": (">=", 0.80)}
+TARGETS = {
+    "reproducibility.max_std": ("<=", 0.010),
+    "source_model_only.found": (">=", 0.90),
+    "source_model_only.success": (">=", 0.80),
+    "ceiling.success": (">=", 0.70),
+    "ceiling.found": (">=", 0.80),
+}
 #: reference partial pours: ``move(0.32, 0.20), pour(theta, hold)``, on the steep part of the outcome curve
 POUR_XY = (0.32, 0.20)
 
@@ -90,25 +95,43 @@ def reproducibility(world, executor, thetas: Sequence[float], hold: float, n: in
         acts = [[move(*POUR_XY), pour(th, hold)]] * n
         same = executor.run("source", start, acts)
         appr = [r for r in executor.run("source", starts, acts) if not r.stuck]
-        offs = executor.run("source", start, [[move(POUR_XY[0] + ox, POUR_XY[1] + oy), pour(th, hold)]
-                                              for ox, oy in offsets])
+        offs = executor.run(
+            "source", start, [[move(POUR_XY[0] + ox, POUR_XY[1] + oy), pour(th, hold)] for ox, oy in offsets]
+        )
         a, b, c = (np.array([r.states[-1, 4] for r in res]) for res in (same, appr, offs))
-        rows.append({"theta": th, "hold": hold, "slots_mean": float(a.mean()), "slots_std": float(a.std()),
-                     "approaches": len(b), "approaches_mean": float(b.mean()), "approaches_std": float(b.std()),
-                     "offsets_mean": float(c.mean()), "offsets_std": float(c.std()),
-                     "slots_spill_mean": float(np.mean([r.final_spill for r in same]))})
-    return {"pours": rows, "slots_std": [r["slots_std"] for r in rows],
-            "approaches_std": [r["approaches_std"] for r in rows],
-            "offsets_std": [r["offsets_std"] for r in rows],
-            "max_std": max(max(r["slots_std"], r["approaches_std"], r["offsets_std"]) for r in rows)}
+        rows.append(
+            {
+                "theta": th,
+                "hold": hold,
+                "slots_mean": float(a.mean()),
+                "slots_std": float(a.std()),
+                "approaches": len(b),
+                "approaches_mean": float(b.mean()),
+                "approaches_std": float(b.std()),
+                "offsets_mean": float(c.mean()),
+                "offsets_std": float(c.std()),
+                "slots_spill_mean": float(np.mean([r.final_spill for r in same])),
+            }
+        )
+    return {
+        "pours": rows,
+        "slots_std": [r["slots_std"] for r in rows],
+        "approaches_std": [r["approaches_std"] for r in rows],
+        "offsets_std": [r["offsets_std"] for r in rows],
+        "max_std": max(max(r["slots_std"], r["approaches_std"], r["offsets_std"]) for r in rows),
+    }
 
 
 def plan_all(pool, mde, problems, exp, seed: int, purpose: str, mde_beta: float | None = None) -> list:
     """One plan per problem (None where none is found), seeded per (seed, purpose, index), on the
     :class:`planner.PlanPool` (``planner.workers`` processes; same plans as in-process)."""
     beta = exp.beta_test if mde_beta is None else mde_beta
-    reqs = [PlanRequest("plan", prob.start, prob.goal, beta=beta, d_max=exp.d_max,
-                        seed=derive_seed(seed, "ladder", purpose, k)) for k, prob in enumerate(problems)]
+    reqs = [
+        PlanRequest(
+            "plan", prob.start, prob.goal, beta=beta, d_max=exp.d_max, seed=derive_seed(seed, "ladder", purpose, k)
+        )
+        for k, prob in enumerate(problems)
+    ]
     # a plan that raises is logged and recorded as not found; the rung goes on
     return [res.trajectory if res.found else None for res in pool.run(reqs, mde, errors="record")]
 
@@ -122,8 +145,13 @@ def execute_plans(executor, world_name: str, problems, plans) -> list:
     jit = np.array([problems[k].plant_jitter for k in idx])
     if world_name == "source":
         jit[:] = 0.0
-    res = executor.run(world_name, np.array([problems[k].start[:3] for k in idx]), [plans[k].actions for k in idx],
-                       plant_jitter=jit, goals=[problems[k].goal for k in idx])
+    res = executor.run(
+        world_name,
+        np.array([problems[k].start[:3] for k in idx]),
+        [plans[k].actions for k in idx],
+        plant_jitter=jit,
+        goals=[problems[k].goal for k in idx],
+    )
     for k, r in zip(idx, res):
         out[k] = r
     return out
@@ -137,8 +165,14 @@ def model_only(world, world_name: str, pool, exp, executor, n: int, seed: int) -
     t_plan = time.perf_counter() - t0
     res = execute_plans(executor, world_name, problems, plans)
     done = [r for r in res if r is not None]
-    return {"n": n, "found": len(done) / n, "success": sum(bool(r.goal_reached) for r in done) / n,
-            **outcomes(world, done), "plan_seconds": t_plan, "problems": per_problem(problems, res)}
+    return {
+        "n": n,
+        "found": len(done) / n,
+        "success": sum(bool(r.goal_reached) for r in done) / n,
+        **outcomes(world, done),
+        "plan_seconds": t_plan,
+        "problems": per_problem(problems, res),
+    }
 
 
 def per_problem(problems, res: list) -> list[dict]:
@@ -146,11 +180,19 @@ def per_problem(problems, res: list) -> list[dict]:
     plan). Why: a rung's rate says how many problems fail, these rows say which (goal, start)."""
     rows = []
     for prob, r in zip(problems, res):
-        row = {"start": [round(float(v), 4) for v in prob.start[:3]], "goal": round(float(prob.goal), 4),
-               "found": r is not None}
+        row = {
+            "start": [round(float(v), 4) for v in prob.start[:3]],
+            "goal": round(float(prob.goal), 4),
+            "found": r is not None,
+        }
         if r is not None:
-            row.update(actions=len(r.steps), category=r.category, goal_reached=bool(r.goal_reached),
-                       final_target=round(float(r.states[-1, 4]), 4), final_spill=round(float(r.final_spill), 4))
+            row.update(
+                actions=len(r.steps),
+                category=r.category,
+                goal_reached=bool(r.goal_reached),
+                final_target=round(float(r.states[-1, 4]), 4),
+                final_spill=round(float(r.final_spill), 4),
+            )
         rows.append(row)
     return rows
 
@@ -159,9 +201,11 @@ def outcomes(world, done: list) -> dict:
     """How the executed plans ended: trajectory categories, mean |final target fraction - goal|, and how
     many spilled over the world's limit (what a found-but-failed plan did)."""
     errors = [abs(r.states[-1, 4] - r.goal) for r in done]
-    return {"categories": {c: sum(r.category == c for r in done) for c in CATEGORIES},
-            "mean_abs_goal_error": float(np.mean(errors)) if errors else None,
-            "spill_over_limit": sum(r.final_spill > world.problems["max_spill"] for r in done)}
+    return {
+        "categories": {c: sum(r.category == c for r in done) for c in CATEGORIES},
+        "mean_abs_goal_error": float(np.mean(errors)) if errors else None,
+        "spill_over_limit": sum(r.final_spill > world.problems["max_spill"] for r in done),
+    }
 
 
 #: trajectories per simulated batch of a ceiling set: trajectory i runs in env slot i % CEILING_BATCH
@@ -186,15 +230,25 @@ def ceiling_dataset(world, pool, exp, executor, n_train: int, seed: int, batch: 
     acts += [sampler.sample(exp.random_actions_length, rng) for _ in train_probs[n_plans:]]
     results = []
     for i in range(0, n_train, batch):
-        chunk = train_probs[i:i + batch]
-        results += executor.run("target", np.array([p.start[:3] for p in chunk]), acts[i:i + batch],
-                                plant_jitter=np.array([p.plant_jitter for p in chunk]), goals=[p.goal for p in chunk])
+        chunk = train_probs[i : i + batch]
+        results += executor.run(
+            "target",
+            np.array([p.start[:3] for p in chunk]),
+            acts[i : i + batch],
+            plant_jitter=np.array([p.plant_jitter for p in chunk]),
+            goals=[p.goal for p in chunk],
+        )
     s, a, s2 = stack_steps(results)
     kept = [(i, r) for i, r in enumerate(results) if not r.unstable]  # as _stack_steps
-    return {"s": s, "a": a, "s_next": s2, "trajectory": np.array([i for i, r in kept for _ in r.steps], dtype=int),
-            "category": np.array([r.category for r in results]),
-            "train_plans_found": np.array(sum(p is not None for p in plans)),
-            "plant_on_contact": np.array(world.plant_on_contact)}
+    return {
+        "s": s,
+        "a": a,
+        "s_next": s2,
+        "trajectory": np.array([i for i, r in kept for _ in r.steps], dtype=int),
+        "category": np.array([r.category for r in results]),
+        "train_plans_found": np.array(sum(p is not None for p in plans)),
+        "plant_on_contact": np.array(world.plant_on_contact),
+    }
 
 
 def check_ceiling_data(path: Path, on_contact: str) -> None:
@@ -204,12 +258,16 @@ def check_ceiling_data(path: Path, on_contact: str) -> None:
     with np.load(path) as f:
         made = str(f["plant_on_contact"]) if "plant_on_contact" in f.files else None
     if made is None:
-        raise ValueError(f"--ceiling-data {path}: records no world.plant.on_contact (not a ceiling set of this code); "
-                         f"remake it: python -m active.ladder --out DIR --rungs ceiling")
+        raise ValueError(
+            f"--ceiling-data {path}: records no world.plant.on_contact (not a ceiling set of this code); "
+            f"remake it: python -m active.ladder --out DIR --rungs ceiling"
+        )
     if made != on_contact:
-        raise ValueError(f"--ceiling-data {path}: made with world.plant.on_contact={made}, but the run has "
-                         f"world.plant.on_contact={on_contact}; pass world.plant.on_contact={made} or use a set made "
-                         f"with {on_contact}")
+        raise ValueError(
+            f"--ceiling-data {path}: made with world.plant.on_contact={made}, but the run has "
+            f"world.plant.on_contact={on_contact}; pass world.plant.on_contact={made} or use a set made "
+            f"with {on_contact}"
+        )
 
 
 def ceiling_subset(data: dict, k: int) -> dict:
@@ -222,13 +280,30 @@ def ceiling_subset(data: dict, k: int) -> dict:
     ids = np.r_[np.arange(k // 2), n // 2 + np.arange(k - k // 2)]
     rows = np.isin(data["trajectory"], ids)
     renum = np.searchsorted(ids, data["trajectory"][rows])
-    sub = {"s": data["s"][rows], "a": data["a"][rows], "s_next": data["s_next"][rows], "trajectory": renum,
-           "category": data["category"][ids], "train_plans_found": np.array(-1)}  # unknown for a subset
+    sub = {
+        "s": data["s"][rows],
+        "a": data["a"][rows],
+        "s_next": data["s_next"][rows],
+        "trajectory": renum,
+        "category": data["category"][ids],
+        "train_plans_found": np.array(-1),
+    }  # unknown for a subset
     return sub | ({"plant_on_contact": data["plant_on_contact"]} if "plant_on_contact" in data else {})
 
 
-def ceiling(world, dyn, pool, exp, executor, make_mde, n_train: int, n: int, seed: int,
-            data_path: Path | None = None, reuse: bool = False) -> dict:
+def ceiling(
+    world,
+    dyn,
+    pool,
+    exp,
+    executor,
+    make_mde,
+    n_train: int,
+    n: int,
+    seed: int,
+    data_path: Path | None = None,
+    reuse: bool = False,
+) -> dict:
     """Fit the MDE on n_train target-world trajectories (:func:`ceiling_dataset`), then plan n fresh
     test problems with the paper's precondition.
 
@@ -258,24 +333,37 @@ def ceiling(world, dyn, pool, exp, executor, make_mde, n_train: int, n: int, see
     X = torch.as_tensor(features(s, a))
     mu, sd = (v.double().numpy() for v in mde.predict(X)) if len(y) else (np.zeros(0), np.zeros(0))
     t0 = time.perf_counter()
-    cv = cross_validate(make_mde, X, torch.as_tensor(y), torch.as_tensor(data["trajectory"]), folds=5) \
-        if len(np.unique(data["trajectory"])) >= 5 else None
+    cv = (
+        cross_validate(make_mde, X, torch.as_tensor(y), torch.as_tensor(data["trajectory"]), folds=5)
+        if len(np.unique(data["trajectory"])) >= 5
+        else None
+    )
     t_cv = time.perf_counter() - t0
     per_skill = {}
     for name, code in (("move", MOVE), ("pour", POUR)):
         m = a[:, 0] == code if len(a) else np.zeros(0, bool)
         if m.any():
-            per_skill[name] = {"n": int(m.sum()), "label_mean": float(np.mean(y[m])),
-                               "label_std": float(np.std(y[m])), "pred_mean": float(np.mean(mu[m])),
-                               "pred_std_mean": float(np.mean(sd[m])),
-                               **_admission(mu[m], sd[m], y[m], exp, "in_sample")}
+            per_skill[name] = {
+                "n": int(m.sum()),
+                "label_mean": float(np.mean(y[m])),
+                "label_std": float(np.std(y[m])),
+                "pred_mean": float(np.mean(mu[m])),
+                "pred_std_mean": float(np.mean(sd[m])),
+                **_admission(mu[m], sd[m], y[m], exp, "in_sample"),
+            }
             if cv is not None:
                 per_skill[name].update(_admission(cv[0].numpy()[m], cv[1].numpy()[m], y[m], exp, "heldout"))
-    return {"train_trajectories": n_train, "train_plans_found": int(data.get("train_plans_found", -1)),
-            "train_transitions": int(len(y)), "label_mean": float(np.mean(y)) if len(y) else None,
-            "label_below_d_max": float(np.mean(np.asarray(y) < exp.d_max)) if len(y) else None,
-            "precondition_on_train": per_skill, **ceiling_test(world, pool, mde, exp, executor, n, seed),
-            "fit_seconds": t_fit, "cv_seconds": t_cv}
+    return {
+        "train_trajectories": n_train,
+        "train_plans_found": int(data.get("train_plans_found", -1)),
+        "train_transitions": int(len(y)),
+        "label_mean": float(np.mean(y)) if len(y) else None,
+        "label_below_d_max": float(np.mean(np.asarray(y) < exp.d_max)) if len(y) else None,
+        "precondition_on_train": per_skill,
+        **ceiling_test(world, pool, mde, exp, executor, n, seed),
+        "fit_seconds": t_fit,
+        "cv_seconds": t_cv,
+    }
 
 
 def ceiling_test(world, pool, mde, exp, executor, n: int, seed: int) -> dict:
@@ -288,8 +376,14 @@ def ceiling_test(world, pool, mde, exp, executor, n: int, seed: int) -> dict:
     t_plan = time.perf_counter() - t0
     res = execute_plans(executor, "target", test, plans)
     done = [r for r in res if r is not None]
-    return {"n": n, "found": len(done) / n, "success": sum(bool(r.goal_reached) for r in done) / n,
-            **outcomes(world, done), "plan_seconds": t_plan, "problems": per_problem(test, res)}
+    return {
+        "n": n,
+        "found": len(done) / n,
+        "success": sum(bool(r.goal_reached) for r in done) / n,
+        **outcomes(world, done),
+        "plan_seconds": t_plan,
+        "problems": per_problem(test, res),
+    }
 
 
 def _admission(mu: np.ndarray, sd: np.ndarray, y: np.ndarray, exp, prefix: str) -> dict:
@@ -298,14 +392,27 @@ def _admission(mu: np.ndarray, sd: np.ndarray, y: np.ndarray, exp, prefix: str) 
     ok = mu + exp.beta_test * sd < exp.d_max
     good = y < exp.d_max
     frac = lambda m: float(np.mean(ok[m])) if m.any() else None  # noqa: E731
-    return {f"{prefix}_admitted": float(np.mean(ok)), f"{prefix}_admitted_good": frac(good),
-            f"{prefix}_admitted_bad": frac(~good)}
+    return {
+        f"{prefix}_admitted": float(np.mean(ok)),
+        f"{prefix}_admitted_good": frac(good),
+        f"{prefix}_admitted_bad": frac(~good),
+    }
 
 
-def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[float], hold: float, n: int,
-               n_train: int, slots: int = 32, progress: bool = True,
-               ceiling_data: Path | Sequence[Path] | None = None, model_seeds: Sequence[int] | None = None,
-               ceiling_seeds: Sequence[int] | None = None) -> dict:
+def run_ladder(
+    cfg: dict,
+    out: Path,
+    rungs: Sequence[str],
+    thetas: Sequence[float],
+    hold: float,
+    n: int,
+    n_train: int,
+    slots: int = 32,
+    progress: bool = True,
+    ceiling_data: Path | Sequence[Path] | None = None,
+    model_seeds: Sequence[int] | None = None,
+    ceiling_seeds: Sequence[int] | None = None,
+) -> dict:
     """Measure the requested rungs; ``ladder.json`` is rewritten after each one.
 
     ``model_seeds``: the model-only rungs are measured with a dynamics model trained with each of these
@@ -334,8 +441,9 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
     workers = planner_workers(cfg["planner"])
     out.mkdir(parents=True, exist_ok=True)
     path = out / "ladder.json"
-    result: dict[str, Any] = {"config": {"world": cfg["world"], "dynamics": cfg["dynamics"],
-                                         "experiment": cfg["experiment"], "seed": seed}}
+    result: dict[str, Any] = {
+        "config": {"world": cfg["world"], "dynamics": cfg["dynamics"], "experiment": cfg["experiment"], "seed": seed}
+    }
     executor = PouringExecutor(world)
 
     def save(name: str, value: Any, t0: float) -> None:
@@ -359,20 +467,38 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
         t0 = time.perf_counter()
         dyn_cfg = {**cfg["dynamics"], "train": {**cfg["dynamics"]["train"], "seed": model_seed}}
         dyn = planning_dynamics(dyn_cfg, cfg["world"], world, exp, progress)
-        result.setdefault("rung_seconds", {})["dynamics" if i == 0 else f"dynamics_seed{model_seed}"] = \
+        result.setdefault("rung_seconds", {})["dynamics" if i == 0 else f"dynamics_seed{model_seed}"] = (
             time.perf_counter() - t0
+        )
         with PlanPool(dyn, planner_cfg, workers, preload=[type(make_mde()).__module__]) as pool:
             for name in model_rungs:
                 t0 = time.perf_counter()
-                per_seed[name].append({"model_seed": model_seed,
-                                       **model_only(world, name.split("_")[0], pool, exp, executor, n, seed)})
+                per_seed[name].append(
+                    {"model_seed": model_seed, **model_only(world, name.split("_")[0], pool, exp, executor, n, seed)}
+                )
                 save(name, _mean_over(per_seed[name], "model_seed"), t0)
             if "ceiling" in rungs and i == 0:
                 t0 = time.perf_counter()
                 rows = []
                 for ceiling_seed, data_path, reuse in ceiling_runs:
-                    rows.append({"seed": ceiling_seed, **ceiling(world, dyn, pool, exp, executor, make_mde, n_train,
-                                                                 n, ceiling_seed, data_path=data_path, reuse=reuse)})
+                    rows.append(
+                        {
+                            "seed": ceiling_seed,
+                            **ceiling(
+                                world,
+                                dyn,
+                                pool,
+                                exp,
+                                executor,
+                                make_mde,
+                                n_train,
+                                n,
+                                ceiling_seed,
+                                data_path=data_path,
+                                reuse=reuse,
+                            ),
+                        }
+                    )
                     save("ceiling", _mean_over(rows, "seed"), t0)
     executor.close()
     result["seconds"] = time.perf_counter() - t_start
@@ -383,8 +509,9 @@ def run_ladder(cfg: dict, out: Path, rungs: Sequence[str], thetas: Sequence[floa
 RUNGS = ("reproducibility", "source_model_only", "target_model_only", "ceiling")
 
 
-def _ceiling_runs(seed: int, ceiling_seeds: Sequence[int] | None, ceiling_data: Path | Sequence[Path] | None,
-                  out: Path) -> list[tuple[int, Path, bool]]:
+def _ceiling_runs(
+    seed: int, ceiling_seeds: Sequence[int] | None, ceiling_data: Path | Sequence[Path] | None, out: Path
+) -> list[tuple[int, Path, bool]]:
     """(seed, data file, reuse) of each ceiling measurement; a bad combination raises before any compute."""
     seeds = [seed] if ceiling_seeds is None else [int(s) for s in ceiling_seeds]
     if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
@@ -394,8 +521,10 @@ def _ceiling_runs(seed: int, ceiling_seeds: Sequence[int] | None, ceiling_data: 
         return [(s, out / name(s), False) for s in seeds]
     files = [Path(ceiling_data)] if isinstance(ceiling_data, (str, os.PathLike)) else [Path(f) for f in ceiling_data]
     if len(files) != len(seeds):
-        raise ValueError(f"--ceiling-data has {len(files)} file(s) but --ceiling-seeds {seeds} has {len(seeds)}: "
-                         "give one seed per file (the seed its set was made with: it also draws the test problems)")
+        raise ValueError(
+            f"--ceiling-data has {len(files)} file(s) but --ceiling-seeds {seeds} has {len(seeds)}: "
+            "give one seed per file (the seed its set was made with: it also draws the test problems)"
+        )
     return [(s, f, True) for s, f in zip(seeds, files)]
 
 
@@ -431,9 +560,15 @@ def _get(result: dict, dotted: str) -> Any:
 def table(result: dict) -> str:
     """The rungs as a table with the targets; a rung not run shows '-'."""
     lines = [f"{'rung':34s} {'measured':>9s} {'target':>9s}  met"]
-    rows = [("reproducibility.max_std", "{:.3f}"), ("source_model_only.found", "{:.2f}"),
-            ("source_model_only.success", "{:.2f}"), ("target_model_only.found", "{:.2f}"),
-            ("target_model_only.success", "{:.2f}"), ("ceiling.found", "{:.2f}"), ("ceiling.success", "{:.2f}")]
+    rows = [
+        ("reproducibility.max_std", "{:.3f}"),
+        ("source_model_only.found", "{:.2f}"),
+        ("source_model_only.success", "{:.2f}"),
+        ("target_model_only.found", "{:.2f}"),
+        ("target_model_only.success", "{:.2f}"),
+        ("ceiling.found", "{:.2f}"),
+        ("ceiling.success", "{:.2f}"),
+    ]
     for key, fmt in rows:
         v = _get(result, key)
         op, tgt = TARGETS.get(key, (None, None))
@@ -442,47 +577,78 @@ def table(result: dict) -> str:
         models, sets = _get(result, rung + ".model_seeds"), _get(result, rung + ".seeds")
         what = f"{len(models)} models" if models else f"{len(sets or [])} training sets"
         over = "" if rng is None else f"  (mean of {what}: {fmt.format(rng[0])}-{fmt.format(rng[1])})"
-        lines.append(f"{key:34s} {'-' if v is None else fmt.format(v):>9s} "
-                     f"{'' if op is None else f'{op} {tgt:g}':>9s}  {met}{over}")
-    for r in (_get(result, "reproducibility.pours") or []):
+        lines.append(
+            f"{key:34s} {'-' if v is None else fmt.format(v):>9s} "
+            f"{'' if op is None else f'{op} {tgt:g}':>9s}  {met}{over}"
+        )
+    for r in _get(result, "reproducibility.pours") or []:
         offs = f", sub-cell offsets {r['offsets_mean']:.3f} +- {r['offsets_std']:.3f}" if "offsets_std" in r else ""
-        lines.append(f"  pour theta {r['theta']:.2f} hold {r['hold']:.2f}: slots {r['slots_mean']:.3f} +- "
-                     f"{r['slots_std']:.3f}, approaches {r['approaches_mean']:.3f} +- {r['approaches_std']:.3f}{offs}")
+        lines.append(
+            f"  pour theta {r['theta']:.2f} hold {r['hold']:.2f}: slots {r['slots_mean']:.3f} +- "
+            f"{r['slots_std']:.3f}, approaches {r['approaches_mean']:.3f} +- {r['approaches_std']:.3f}{offs}"
+        )
     for skill, r in (_get(result, "ceiling.precondition_on_train") or {}).items():
         f = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
-        lines.append(f"  ceiling precondition, {skill}s: admits good/bad {f(r.get('in_sample_admitted_good'))}/"
-                     f"{f(r.get('in_sample_admitted_bad'))} in sample, {f(r.get('heldout_admitted_good'))}/"
-                     f"{f(r.get('heldout_admitted_bad'))} held out by trajectory")
+        lines.append(
+            f"  ceiling precondition, {skill}s: admits good/bad {f(r.get('in_sample_admitted_good'))}/"
+            f"{f(r.get('in_sample_admitted_bad'))} in sample, {f(r.get('heldout_admitted_good'))}/"
+            f"{f(r.get('heldout_admitted_bad'))} held out by trajectory"
+        )
     if "seconds" in result:
         lines.append(f"wall time {result['seconds']:.0f} s")
     return "\n".join(lines)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m active.ladder", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m active.ladder", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--out", type=Path, required=True, help="output directory (ladder.json)")
     ap.add_argument("--rungs", nargs="+", default=list(RUNGS), help=f"which rungs (default all: {' '.join(RUNGS)})")
-    ap.add_argument("--thetas", type=float, nargs="+", default=[1.15, 1.25],
-                    help="pour angles of the reproducibility rung, on the steep part of the default world's "
-                         "outcome curve (0.30 and 0.49 of the water)")
+    ap.add_argument(
+        "--thetas",
+        type=float,
+        nargs="+",
+        default=[1.15, 1.25],
+        help="pour angles of the reproducibility rung, on the steep part of the default world's "
+        "outcome curve (0.30 and 0.49 of the water)",
+    )
     ap.add_argument("--hold", type=float, default=0.5, help="hold time of the reproducibility pours, s")
     ap.add_argument("--slots", type=int, default=32, help="environment slots / approaches per reproducibility pour")
     ap.add_argument("--problems", type=int, default=30, help="problems per planning rung")
-    ap.add_argument("--ceiling-trajectories", type=int, default=None,
-                    help="target-world training trajectories (default 128; with --ceiling-data: all of the file's, "
-                         "or this many of them, half random plans and half random actions)")
-    ap.add_argument("--ceiling-data", type=Path, nargs="+", default=None,
-                    help="reuse the training transitions of an earlier run (its DIR/ceiling_train.npz) instead "
-                         "of simulating them; labels are recomputed with the current dynamics model "
-                         "(several files: one per --ceiling-seeds entry)")
-    ap.add_argument("--ceiling-seeds", type=int, nargs="+", default=None,
-                    help="measure the ceiling once per seed, each with its own training set and test problems, "
-                         "and report the mean and range (default: the config's seed only)")
-    ap.add_argument("--model-seeds", type=int, nargs="+", default=None,
-                    help="measure the model-only rungs with a dynamics model trained with each of these seeds "
-                         "(dynamics.train.seed; trained on first use, cached) and report their mean and range "
-                         "(default: the config's model only)")
+    ap.add_argument(
+        "--ceiling-trajectories",
+        type=int,
+        default=None,
+        help="target-world training trajectories (default 128; with --ceiling-data: all of the file's, "
+        "or this many of them, half random plans and half random actions)",
+    )
+    ap.add_argument(
+        "--ceiling-data",
+        type=Path,
+        nargs="+",
+        default=None,
+        help="reuse the training transitions of an earlier run (its DIR/ceiling_train.npz) instead "
+        "of simulating them; labels are recomputed with the current dynamics model "
+        "(several files: one per --ceiling-seeds entry)",
+    )
+    ap.add_argument(
+        "--ceiling-seeds",
+        type=int,
+        nargs="+",
+        default=None,
+        help="measure the ceiling once per seed, each with its own training set and test problems, "
+        "and report the mean and range (default: the config's seed only)",
+    )
+    ap.add_argument(
+        "--model-seeds",
+        type=int,
+        nargs="+",
+        default=None,
+        help="measure the model-only rungs with a dynamics model trained with each of these seeds "
+        "(dynamics.train.seed; trained on first use, cached) and report their mean and range "
+        "(default: the config's model only)",
+    )
     ap.add_argument("overrides", nargs="*", help="Hydra overrides, as for python -m active.run")
     args, extra = ap.parse_known_args(argv)
     bad = [e for e in extra if "=" not in e]
@@ -502,8 +668,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         raise SystemExit(f"--ceiling-trajectories {n_ceiling}: allowed >= 2")
     if args.problems < 1 or args.slots < 2:
         raise SystemExit(f"--problems {args.problems} / --slots {args.slots}: allowed >= 1 / >= 2")
-    if args.model_seeds is not None and (len(set(args.model_seeds)) != len(args.model_seeds)
-                                         or min(args.model_seeds) < 0):
+    if args.model_seeds is not None and (
+        len(set(args.model_seeds)) != len(args.model_seeds) or min(args.model_seeds) < 0
+    ):
         raise SystemExit(f"--model-seeds {args.model_seeds}: allowed distinct integers >= 0")
     for f in args.ceiling_data or []:
         if not f.is_file():
@@ -520,9 +687,20 @@ def main(argv: Sequence[str] | None = None) -> None:
             check_ceiling_data(f, on_contact)
         except ValueError as err:
             raise SystemExit(str(err)) from None
-    result = run_ladder(cfg, args.out, args.rungs, args.thetas, args.hold, args.problems,
-                        args.ceiling_trajectories, slots=args.slots, progress=bool(cfg.get("progress", True)),
-                        ceiling_data=args.ceiling_data, model_seeds=args.model_seeds, ceiling_seeds=args.ceiling_seeds)
+    result = run_ladder(
+        cfg,
+        args.out,
+        args.rungs,
+        args.thetas,
+        args.hold,
+        args.problems,
+        args.ceiling_trajectories,
+        slots=args.slots,
+        progress=bool(cfg.get("progress", True)),
+        ceiling_data=args.ceiling_data,
+        model_seeds=args.model_seeds,
+        ceiling_seeds=args.ceiling_seeds,
+    )
     print(table(result))
     print(f"wrote {args.out / 'ladder.json'}")
 

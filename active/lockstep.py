@@ -51,8 +51,14 @@ def run_lockstep(runs: Sequence[MethodRun], pool: PlanPool, executor: PouringExe
         return
     iterations = runs[0].ctx.exp.iterations
     first = min(r.completed for r in runs)
-    bar = tqdm(range(first, iterations), disable=not progress, desc=f"lockstep: {len(runs)} runs", unit="round",
-               initial=first, total=iterations)
+    bar = tqdm(
+        range(first, iterations),
+        disable=not progress,
+        desc=f"lockstep: {len(runs)} runs",
+        unit="round",
+        initial=first,
+        total=iterations,
+    )
     times: list[float] = []
     for it in bar:
         pool.start()  # worker start-up (first round only) is not planning time

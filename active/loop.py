@@ -49,11 +49,39 @@ from .tracking import Tracker
 
 log = logging.getLogger(__name__)
 
-RESULT_FIELDS = ["method", "seed", "iteration", "n_trajectories", "n_transitions", "beta", "test_success",
-                 "test_plan_found", "train_goal_reached", "fallbacks", "plan_errors", "plan_seconds", "sim_seconds", "fit_seconds",
-                 "test_seconds", "iteration_seconds"]
-CATEGORY_FIELDS = ["method", "seed", "iteration", "trajectory", "category", "source", "n_candidates", "steps",
-                   "stuck", "stuck_on", "final_spill", "goal", "goal_reached"]
+RESULT_FIELDS = [
+    "method",
+    "seed",
+    "iteration",
+    "n_trajectories",
+    "n_transitions",
+    "beta",
+    "test_success",
+    "test_plan_found",
+    "train_goal_reached",
+    "fallbacks",
+    "plan_errors",
+    "plan_seconds",
+    "sim_seconds",
+    "fit_seconds",
+    "test_seconds",
+    "iteration_seconds",
+]
+CATEGORY_FIELDS = [
+    "method",
+    "seed",
+    "iteration",
+    "trajectory",
+    "category",
+    "source",
+    "n_candidates",
+    "steps",
+    "stuck",
+    "stuck_on",
+    "final_spill",
+    "goal",
+    "goal_reached",
+]
 TEST_FIELDS = ["method", "seed", "iteration", *OUTCOME_FIELDS]
 #: result columns that are wall-clock times (excluded when comparing a resumed run with a fresh one)
 TIMING_FIELDS = {"plan_seconds", "sim_seconds", "fit_seconds", "test_seconds", "iteration_seconds"}
@@ -101,10 +129,20 @@ class MethodRun:
         self.dir.mkdir(parents=True, exist_ok=True)
         self.make_mde, self.make_acq, self.tracker = make_mde, make_acquisition, tracker
         self.sampler = ActionSampler(ctx.planner_cfg)
-        self.state = {"format": RUN_FORMAT, "version": RUN_FORMAT_VERSION, "completed": 0,
-                      "digest": config_digest(ctx.cfg), "X": torch.zeros(0, 8, dtype=torch.float64),
-                      "y": torch.zeros(0, dtype=torch.float64), "results": [], "categories": [], "calibration": [],
-                      "tests": [], "n_trajectories": 0, "mde_path": None}
+        self.state = {
+            "format": RUN_FORMAT,
+            "version": RUN_FORMAT_VERSION,
+            "completed": 0,
+            "digest": config_digest(ctx.cfg),
+            "X": torch.zeros(0, 8, dtype=torch.float64),
+            "y": torch.zeros(0, dtype=torch.float64),
+            "results": [],
+            "categories": [],
+            "calibration": [],
+            "tests": [],
+            "n_trajectories": 0,
+            "mde_path": None,
+        }
         self.mde = make_mde()
         state_path = self.dir / "state.pt"
         if state_path.exists():
@@ -114,8 +152,10 @@ class MethodRun:
     def _resume(self, path: Path) -> None:
         st = load_state(path)
         if st["digest"] != self.state["digest"]:
-            raise RuntimeError(f"{path} was written by a run with a different configuration; use a new output "
-                               f"directory (hydra.run.dir=...) or delete {self.dir} to restart this method")
+            raise RuntimeError(
+                f"{path} was written by a run with a different configuration; use a new output "
+                f"directory (hydra.run.dir=...) or delete {self.dir} to restart this method"
+            )
         self.state = st
         if st["mde_path"]:
             check_checkpoint(self.dir / st["mde_path"], st.get("mde_sha256"), path)
@@ -136,8 +176,9 @@ class MethodRun:
 
     def _write_derived(self) -> None:
         """The files derived from the state (the source of truth): the CSVs and ``dataset.pt``."""
-        save_torch(self.dir / "dataset.pt", {"X": self.state["X"], "y": self.state["y"],
-                                             "feature_names": list(FEATURE_NAMES)})
+        save_torch(
+            self.dir / "dataset.pt", {"X": self.state["X"], "y": self.state["y"], "feature_names": list(FEATURE_NAMES)}
+        )
         fields = RESULT_FIELDS + (["test_success_refined"] if self.ctx.exp.refine_steps else [])
         write_csv(self.dir / "results.csv", self.state["results"], fields)
         write_csv(self.dir / "categories.csv", self.state["categories"], CATEGORY_FIELDS)
@@ -153,8 +194,14 @@ class MethodRun:
     def run(self) -> list[dict]:
         ctx, exp = self.ctx, self.ctx.exp
         its = range(self.completed, exp.iterations)
-        bar = tqdm(its, disable=not ctx.progress, desc=f"{self.method} seed {ctx.seed}", unit="it",
-                   initial=self.completed, total=exp.iterations)
+        bar = tqdm(
+            its,
+            disable=not ctx.progress,
+            desc=f"{self.method} seed {ctx.seed}",
+            unit="it",
+            initial=self.completed,
+            total=exp.iterations,
+        )
         for it in bar:
             ctx.planner_pool().start()  # worker start-up (first iteration of a run only) is not planning time
             steps = self.iteration_steps(it)
@@ -171,10 +218,12 @@ class MethodRun:
     def finish_iteration(self, it: int, row: dict) -> None:
         """Save iteration ``it`` (atomically; it is complete from here on), print its line, log it."""
         self._save(it + 1)
-        line = (f"[{self.method} seed {self.ctx.seed}] iteration {it + 1}/{self.ctx.exp.iterations}: "
-                f"{row['n_trajectories']} trajectories, {row['n_transitions']} transitions, "
-                f"test success {row['test_success']:.2f}, plans found {row['test_plan_found']:.2f}, "
-                f"{row['iteration_seconds']:.0f} s")
+        line = (
+            f"[{self.method} seed {self.ctx.seed}] iteration {it + 1}/{self.ctx.exp.iterations}: "
+            f"{row['n_trajectories']} trajectories, {row['n_transitions']} transitions, "
+            f"test success {row['test_success']:.2f}, plans found {row['test_plan_found']:.2f}, "
+            f"{row['iteration_seconds']:.0f} s"
+        )
         tqdm.write(line)  # above the bars (printed with or without them)
         self.tracker.log({k: v for k, v in row.items() if isinstance(v, (int, float))}, step=it + 1)
 
@@ -190,19 +239,22 @@ class MethodRun:
         ctx, exp = self.ctx, self.ctx.exp
         t_start = time.perf_counter()
         beta = exp.beta(it)
-        problems = sample_problems(ctx.world, exp.trajectories_per_iteration, derive_seed(ctx.seed, "train", it),
-                                   world="target")
+        problems = sample_problems(
+            ctx.world, exp.trajectories_per_iteration, derive_seed(ctx.seed, "train", it), world="target"
+        )
         plan_mde = self.mde if self.mde.is_fitted else None  # the precondition the planner uses
         t_plan = t_sim = t_fit = 0.0
         fallbacks = reached = 0
         self.plan_errors = 0  # planner runs that raised this iteration (recorded as not found)
         for c0 in range(0, len(problems), exp.refit_every):
-            chunk = problems[c0:c0 + exp.refit_every]
+            chunk = problems[c0 : c0 + exp.refit_every]
             tp = time.perf_counter()
             cand_sets = yield from self._plan_chunk(chunk, plan_mde, it, c0, beta)  # one planning batch per chunk
             reference = _candidate_steps(cand_sets)
-            choices = [self._choose(prob, cands, it, c0 + j, reference)
-                       for j, (prob, cands) in enumerate(zip(chunk, cand_sets))]
+            choices = [
+                self._choose(prob, cands, it, c0 + j, reference)
+                for j, (prob, cands) in enumerate(zip(chunk, cand_sets))
+            ]
             choices = yield from self._plan_fallbacks(chunk, choices, it, c0)
             t_plan += time.perf_counter() - tp
             ts = time.perf_counter()
@@ -211,12 +263,23 @@ class MethodRun:
             for prob, ch, r in zip(chunk, choices, results):
                 fallbacks += ch.source.startswith("fallback")  # no admitted candidate (either fallback)
                 reached += bool(r.goal_reached)
-                self.state["categories"].append({
-                    "method": self.method, "seed": ctx.seed, "iteration": it + 1, "trajectory": self.state["n_trajectories"],
-                    "category": r.category, "source": ch.source, "n_candidates": ch.n_candidates, "steps": len(r.steps),
-                    "stuck": r.stuck, "stuck_on": r.stuck_on or "", "final_spill": round(r.final_spill, 4),
-                    "goal": round(prob.goal, 4),
-                    "goal_reached": r.goal_reached})
+                self.state["categories"].append(
+                    {
+                        "method": self.method,
+                        "seed": ctx.seed,
+                        "iteration": it + 1,
+                        "trajectory": self.state["n_trajectories"],
+                        "category": r.category,
+                        "source": ch.source,
+                        "n_candidates": ch.n_candidates,
+                        "steps": len(r.steps),
+                        "stuck": r.stuck,
+                        "stuck_on": r.stuck_on or "",
+                        "final_spill": round(r.final_spill, 4),
+                        "goal": round(prob.goal, 4),
+                        "goal_reached": r.goal_reached,
+                    }
+                )
                 self.state["n_trajectories"] += 1
             s, a, s2 = stack_steps(results)
             if len(s):
@@ -232,13 +295,25 @@ class MethodRun:
         success, found = yield from self._test(plan_mde, it)
         t_test = time.perf_counter() - tt
         self._calibrate(it)
-        row = {"method": self.method, "seed": ctx.seed, "iteration": it + 1,
-               "n_trajectories": self.state["n_trajectories"], "n_transitions": int(len(self.state["y"])), "beta": beta,
-               "test_success": success, "test_plan_found": found,
-               **({"test_success_refined": self.last_refined_success} if exp.refine_steps else {}), "train_goal_reached": reached / len(problems),
-               "fallbacks": fallbacks, "plan_errors": self.plan_errors, "plan_seconds": round(t_plan, 3), "sim_seconds": round(t_sim, 3),
-               "fit_seconds": round(t_fit, 3), "test_seconds": round(t_test, 3),
-               "iteration_seconds": round(time.perf_counter() - t_start, 3)}
+        row = {
+            "method": self.method,
+            "seed": ctx.seed,
+            "iteration": it + 1,
+            "n_trajectories": self.state["n_trajectories"],
+            "n_transitions": int(len(self.state["y"])),
+            "beta": beta,
+            "test_success": success,
+            "test_plan_found": found,
+            **({"test_success_refined": self.last_refined_success} if exp.refine_steps else {}),
+            "train_goal_reached": reached / len(problems),
+            "fallbacks": fallbacks,
+            "plan_errors": self.plan_errors,
+            "plan_seconds": round(t_plan, 3),
+            "sim_seconds": round(t_sim, 3),
+            "fit_seconds": round(t_fit, 3),
+            "test_seconds": round(t_test, 3),
+            "iteration_seconds": round(time.perf_counter() - t_start, 3),
+        }
         self.state["results"].append(row)
         return row
 
@@ -247,9 +322,18 @@ class MethodRun:
         ctx, exp = self.ctx, self.ctx.exp
         if not self.spec.plans:  # e.g. random_actions
             return [None] * len(chunk)
-        reqs = [PlanRequest("candidates", prob.start, prob.goal, n=exp.candidates, beta=beta, d_max=exp.d_max,
-                            seed=derive_seed(ctx.seed, self.method, "plan", it, c0 + j))
-                for j, prob in enumerate(chunk)]
+        reqs = [
+            PlanRequest(
+                "candidates",
+                prob.start,
+                prob.goal,
+                n=exp.candidates,
+                beta=beta,
+                d_max=exp.d_max,
+                seed=derive_seed(ctx.seed, self.method, "plan", it, c0 + j),
+            )
+            for j, prob in enumerate(chunk)
+        ]
         sets = yield PlanNeed(reqs, mde if self.spec.plans_with_mde else None)
         self.plan_errors += sum(r.stats.termination == "error" for s in sets for r in s.runs)
         return sets
@@ -261,8 +345,16 @@ class MethodRun:
         idx = [j for j, c in enumerate(choices) if c.source == "fallback"]
         if exp.fallback != "model_plan" or not idx:
             return choices
-        reqs = [PlanRequest("plan", chunk[j].start, chunk[j].goal, d_max=exp.d_max,
-                            seed=derive_seed(ctx.seed, self.method, "fallback-plan", it, c0 + j)) for j in idx]
+        reqs = [
+            PlanRequest(
+                "plan",
+                chunk[j].start,
+                chunk[j].goal,
+                d_max=exp.d_max,
+                seed=derive_seed(ctx.seed, self.method, "fallback-plan", it, c0 + j),
+            )
+            for j in idx
+        ]
         found = yield PlanNeed(reqs, None)
         self.plan_errors += sum(res.stats.termination == "error" for res in found)
         choices = list(choices)
@@ -289,8 +381,17 @@ class MethodRun:
     def _test(self, mde: Any, it: int):
         """Plan the test problems with beta_test, execute the plans found; returns (success, found) rates."""
         ctx, exp = self.ctx, self.ctx.exp
-        reqs = [PlanRequest("plan", prob.start, prob.goal, beta=exp.beta_test, d_max=exp.d_max,
-                            seed=derive_seed(ctx.seed, "test-plan", it, k)) for k, prob in enumerate(ctx.test_problems)]
+        reqs = [
+            PlanRequest(
+                "plan",
+                prob.start,
+                prob.goal,
+                beta=exp.beta_test,
+                d_max=exp.d_max,
+                seed=derive_seed(ctx.seed, "test-plan", it, k),
+            )
+            for k, prob in enumerate(ctx.test_problems)
+        ]
         found = yield PlanNeed(reqs, mde)  # a failed plan counts as not found
         self.plan_errors += sum(res.stats.termination == "error" for res in found)
         plans = [res.trajectory if res.found else None for res in found]
@@ -303,13 +404,21 @@ class MethodRun:
             executed = dict(zip(idx, results))
             success = sum(bool(r.goal_reached) for r in results)
             if exp.refine_steps:
-                ref = refine_plans(ctx.world, [plans[k] for k in idx], [p.goal for p in probs], steps=exp.refine_steps,
-                                   lr=exp.refine_lr, progress=ctx.progress)
+                ref = refine_plans(
+                    ctx.world,
+                    [plans[k] for k in idx],
+                    [p.goal for p in probs],
+                    steps=exp.refine_steps,
+                    lr=exp.refine_lr,
+                    progress=ctx.progress,
+                )
                 results = yield SimNeed(probs, list(ref.actions), len(ctx.test_problems))
                 refined = sum(bool(r.goal_reached) for r in results)
         n = len(ctx.test_problems)
-        self.state["tests"] += [{"method": self.method, "seed": ctx.seed, "iteration": it + 1, **row}
-                                for row in problem_outcomes(ctx.test_problems, executed)]
+        self.state["tests"] += [
+            {"method": self.method, "seed": ctx.seed, "iteration": it + 1, **row}
+            for row in problem_outcomes(ctx.test_problems, executed)
+        ]
         self.last_refined_success = refined / n if exp.refine_steps else None
         return success / n, len(idx) / n
 

@@ -11,7 +11,8 @@ The methods are specs in the ``methods:`` node of the run config (``configs/meth
 name -> ``_target_`` and its arguments), built with ``hydra.utils.instantiate``: a new method is a YAML
 entry or an override (``methods.active_balanced.acquisition.c=0.2``, ``+methods.mine._target_=...``;
 for a new choice rule, a subclass of :class:`Method`). If the planner finds no candidate, a method falls
-back to random actions and the trajectory is marked ``fallback`` (recorded in categories.csv), so every iteration still collects data;
+back to random actions and the trajectory is marked ``fallback`` (recorded in categories.csv), so every
+iteration still collects data;
 with ``experiment.fallback=model_plan`` the loop replaces those by a plan of the model alone (``fallback_plan``).
 If an active method's acquisition fails numerically (a singular MDE posterior), it executes a random
 candidate instead, warns, and marks it ``plan_unscored``.
@@ -57,8 +58,13 @@ class Method:
     plans_with_mde: bool = True
     acquisition: dict[str, Any] | None = None
 
-    def choose(self, candidates: list, rng: np.random.Generator, random_actions: Callable[[], np.ndarray],
-               make_acquisition: Callable[[Mapping[str, Any]], Any] | None = None) -> Choice:
+    def choose(
+        self,
+        candidates: list,
+        rng: np.random.Generator,
+        random_actions: Callable[[], np.ndarray],
+        make_acquisition: Callable[[Mapping[str, Any]], Any] | None = None,
+    ) -> Choice:
         raise NotImplementedError  # pragma: no cover - abstract
 
 
@@ -101,9 +107,12 @@ class ActiveChoice(Method):
                     X = torch.as_tensor(np.asarray(cand.features), dtype=torch.float64).unsqueeze(0)
                     scores.append(float(acq(X).item()))
         except SCORING_ERRORS as err:  # one bad MDE state must not end a long run: recorded, run goes on
-            warnings.warn(f"acquisition failed on {len(candidates)} candidates ({type(err).__name__}: {err}); "
-                          "executing a random candidate, recorded as source 'plan_unscored'", RuntimeWarning,
-                          stacklevel=2)
+            warnings.warn(
+                f"acquisition failed on {len(candidates)} candidates ({type(err).__name__}: {err}); "
+                "executing a random candidate, recorded as source 'plan_unscored'",
+                RuntimeWarning,
+                stacklevel=2,
+            )
             k = int(rng.integers(len(candidates)))
             return Choice(np.asarray(candidates[k].actions), "plan_unscored", len(candidates), chosen=k)
         k = int(np.argmax(scores))  # BoTorch convention: acquisitions are maximised
@@ -144,8 +153,9 @@ def check_method(name: str, registry: Mapping[str, Any] | None = None) -> str:
     """``name`` if ``registry`` (default: the shipped one) has it, else an error naming the allowed ones."""
     names = METHODS if registry is None else _checked(registry, "methods")
     if name not in names:
-        raise ValueError(f"method = {name!r}: allowed one of {sorted(names)} (the methods: node, "
-                         "configs/methods/default.yaml)")
+        raise ValueError(
+            f"method = {name!r}: allowed one of {sorted(names)} (the methods: node, configs/methods/default.yaml)"
+        )
     return name
 
 
@@ -163,8 +173,13 @@ def build_method(name: str, registry: Mapping[str, Any] | None = None) -> Method
     return method
 
 
-def choose(method: str | Method, candidates: list, rng: np.random.Generator, random_actions: Callable[[], np.ndarray],
-           make_acquisition: Callable[[Mapping[str, Any]], Any] | None = None) -> Choice:
+def choose(
+    method: str | Method,
+    candidates: list,
+    rng: np.random.Generator,
+    random_actions: Callable[[], np.ndarray],
+    make_acquisition: Callable[[Mapping[str, Any]], Any] | None = None,
+) -> Choice:
     """Pick the trajectory to execute from the planner's candidates (each has ``.features`` [T, d]
     and ``.actions`` [T, 3])."""
     m = build_method(method) if isinstance(method, str) else method

@@ -66,7 +66,7 @@ def execute_needs(executor: PouringExecutor, needs: list[SimNeed]) -> list[list]
     res = executor.run("target", starts, actions + [NOOP] * pad, plant_jitter=jit, goals=goals, slots=slots)
     out, i = [], 0
     for n in needs:
-        out.append(res[i:i + len(n.problems)])
+        out.append(res[i : i + len(n.problems)])
         i += len(n.problems)
     return out
 
@@ -77,8 +77,14 @@ def problem_outcomes(problems: Sequence[Problem], executed: Mapping[int, Any]) -
     rows = []
     for k, p in enumerate(problems):
         r = executed.get(k)
-        rows.append({"problem": k, "goal": round(float(p.goal), 4), "found": r is not None,
-                     "goal_reached": bool(r is not None and r.goal_reached),
-                     "category": r.category if r is not None else "",
-                     "final_spill": round(float(r.final_spill), 4) if r is not None else ""})
+        rows.append(
+            {
+                "problem": k,
+                "goal": round(float(p.goal), 4),
+                "found": r is not None,
+                "goal_reached": bool(r is not None and r.goal_reached),
+                "category": r.category if r is not None else "",
+                "final_spill": round(float(r.final_spill), 4) if r is not None else "",
+            }
+        )
     return rows

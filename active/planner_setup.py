@@ -21,9 +21,14 @@ from .experiment import ExperimentConfig
 #: planner keys the world or the experiment fixes: ``configs/planner/default.yaml`` interpolates them from
 #: their source, and a run whose planner value differs from the source's (set on the planner side) is refused
 DERIVED_PLANNER_KEYS = {
-    "move_x": "world.skills.move.x", "move_y": "world.skills.move.y", "pour_theta": "world.skills.pour.theta",
-    "pour_hold": "world.skills.pour.hold", "max_actions": "world.skills.max_actions",
-    "spill_limit": "world.problems.max_spill", "d_max": "experiment.d_max", "n_candidates": "experiment.candidates",
+    "move_x": "world.skills.move.x",
+    "move_y": "world.skills.move.y",
+    "pour_theta": "world.skills.pour.theta",
+    "pour_hold": "world.skills.pour.hold",
+    "max_actions": "world.skills.max_actions",
+    "spill_limit": "world.problems.max_spill",
+    "d_max": "experiment.d_max",
+    "n_candidates": "experiment.candidates",
     "time_budget": "experiment.planner_time_budget",
     "propagation_budget": "experiment.planner_propagation_budget",
 }
@@ -37,8 +42,13 @@ NOT_RUN_SETTINGS = {
 }
 
 
-def planning_dynamics(dynamics_cfg: Mapping[str, Any], world_cfg: Mapping[str, Any], world: WorldConfig,
-                      exp: ExperimentConfig, progress: bool = False) -> Any:
+def planning_dynamics(
+    dynamics_cfg: Mapping[str, Any],
+    world_cfg: Mapping[str, Any],
+    world: WorldConfig,
+    exp: ExperimentConfig,
+    progress: bool = False,
+) -> Any:
     """The model the experiment plans with: the cached source-world dynamics model of ``dynamics_cfg``
     (trained on first use), wrapped with the known static geometry when ``experiment.known_obstacles``."""
     dyn = dynamics.load_or_train(dynamics_cfg, world_cfg=world_cfg, progress=progress)
@@ -65,22 +75,27 @@ def build_planner_config(world: WorldConfig, planner: Mapping[str, Any], exp: Ex
         raise ValueError(f"unknown planner key(s) {['planner.' + k for k in unknown]}; allowed: {allowed}")
     fixed = sorted(set(d) & set(NOT_RUN_SETTINGS))
     if fixed:
-        raise ValueError("; ".join(f"planner.{k} is not a setting of a run: its value is {NOT_RUN_SETTINGS[k]}"
-                                   for k in fixed))
+        raise ValueError(
+            "; ".join(f"planner.{k} is not a setting of a run: its value is {NOT_RUN_SETTINGS[k]}" for k in fixed)
+        )
     for k, src in DERIVED_PLANNER_KEYS.items():
         want = _source_value(src, world, exp)
         if k not in d:
             d[k] = want
         elif _plain(d[k]) != _plain(want):
-            raise ValueError(f"planner.{k} = {d[k]!r} differs from {src} = {want!r}: the planner's value is "
-                             f"{src}'s (configs/planner/default.yaml interpolates it); set {src} instead")
+            raise ValueError(
+                f"planner.{k} = {d[k]!r} differs from {src} = {want!r}: the planner's value is "
+                f"{src}'s (configs/planner/default.yaml interpolates it); set {src} instead"
+            )
     d["goal_tol"] = _planner_bound(world, exp, "plan_goal_tol", "tolerance", "(")
     d["spill_limit"] = _planner_bound(world, exp, "plan_spill_limit", "max_spill", "[")
     if exp.plan_accept_tol is not None:
         d["accept_tol"] = _planner_bound(world, exp, "plan_accept_tol", "tolerance", "(")
         if d["accept_tol"] < d["goal_tol"]:
-            raise ValueError(f"experiment.plan_accept_tol = {exp.plan_accept_tol}: allowed [{d['goal_tol']}, "
-                             f"{world.problems['tolerance']}] (from the planner's goal band to the world's tolerance)")
+            raise ValueError(
+                f"experiment.plan_accept_tol = {exp.plan_accept_tol}: allowed [{d['goal_tol']}, "
+                f"{world.problems['tolerance']}] (from the planner's goal band to the world's tolerance)"
+            )
     d["move_lattice"] = float(world.skills.get("lattice", 0.0))
     return PlannerConfig.from_dict(d)
 
@@ -118,6 +133,8 @@ def _planner_bound(world: WorldConfig, exp: ExperimentConfig, exp_key: str, worl
     if value is None:
         return limit
     if value > limit:
-        raise ValueError(f"experiment.{exp_key} = {value}: allowed {lower}0, {limit}] "
-                         f"(world.problems.{world_key}; success is always judged with the world's value)")
+        raise ValueError(
+            f"experiment.{exp_key} = {value}: allowed {lower}0, {limit}] "
+            f"(world.problems.{world_key}; success is always judged with the world's value)"
+        )
     return float(value)

@@ -63,14 +63,20 @@ def check_geometry(world: Any) -> None:
         why = []
         if dx > limits["cup_walls"] * (1 + 1e-9):
             cc, tc = world.controlled_cup, world.target_cup
-            why.append(f"the cup walls (controlled_cup.wall = {cc.wall:g} m, target_cup.wall = {tc.wall:g} m) must be "
-                       f"at least {MIN_WALL_CELLS} cells thick or water leaks through them")
+            why.append(
+                f"the cup walls (controlled_cup.wall = {cc.wall:g} m, target_cup.wall = {tc.wall:g} m) must be "
+                f"at least {MIN_WALL_CELLS} cells thick or water leaks through them"
+            )
         if dx > limits["tank"] * (1 + 1e-9):
-            why.append(f"the tank walls ({wall_cells} cells = {wall_cells * dx:g} m thick) would overlap the "
-                       f"controlled cup at the problem start poses (problems.start_x / start_y)")
-        raise ValueError(f"world.sim.dx = {dx:g}: too coarse for the geometry: {'; and '.join(why)}. Allowed: "
-                         f"0 < dx <= {limit:g} m (with world.sim.wall_cells = {wall_cells}), e.g. the default 0.01 "
-                         f"or world=fine (0.005)")
+            why.append(
+                f"the tank walls ({wall_cells} cells = {wall_cells * dx:g} m thick) would overlap the "
+                f"controlled cup at the problem start poses (problems.start_x / start_y)"
+            )
+        raise ValueError(
+            f"world.sim.dx = {dx:g}: too coarse for the geometry: {'; and '.join(why)}. Allowed: "
+            f"0 < dx <= {limit:g} m (with world.sim.wall_cells = {wall_cells}), e.g. the default 0.01 "
+            f"or world=fine (0.005)"
+        )
     lo = np.full(2, world.floor)
     hi = np.asarray(world.sim["domain"], float)[:2] - world.floor
     boundary = cup_boundary(world, spacing=0.002)
@@ -84,10 +90,12 @@ def check_geometry(world: Any) -> None:
                 who = int(idx[np.argmin(d)])
                 name = "tank wall" if who < 0 else f"{obst.bodies[who].name} body"
                 pr = world.problems
-                raise ValueError(f"world.problems.start_x = {list(pr['start_x'])}, start_y = {list(pr['start_y'])}: "
-                                 f"the controlled cup at the start pose ({pose[0]:g}, {pose[1]:g}) overlaps the "
-                                 f"{name}; allowed: start ranges that keep the cup clear of the tank walls, the target "
-                                 f"cup and the plant")
+                raise ValueError(
+                    f"world.problems.start_x = {list(pr['start_x'])}, start_y = {list(pr['start_y'])}: "
+                    f"the controlled cup at the start pose ({pose[0]:g}, {pose[1]:g}) overlaps the "
+                    f"{name}; allowed: start ranges that keep the cup clear of the tank walls, the target "
+                    f"cup and the plant"
+                )
 
 
 def _start_poses(world: Any, n: int = 5) -> np.ndarray:
@@ -115,9 +123,11 @@ def check_writable(folders: Iterable[Path], what: str = "output directory", fiel
             except FileNotFoundError:  # the directory's owner cleaned it up as a leftover meanwhile
                 pass
         except OSError as e:
-            msg = (f"{what} {d} is not writable ({e.strerror or type(e).__name__}"
-                   f"{': a file is in the way' if d.exists() and not d.is_dir() else ''}); fix its permissions or "
-                   f"choose another location ({field}=...)")
+            msg = (
+                f"{what} {d} is not writable ({e.strerror or type(e).__name__}"
+                f"{': a file is in the way' if d.exists() and not d.is_dir() else ''}); fix its permissions or "
+                f"choose another location ({field}=...)"
+            )
             if field == "hydra.run.dir":
                 raise RunDirectoryError(msg) from None
             raise ValueError(msg) from None

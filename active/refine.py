@@ -40,9 +40,18 @@ def last_pour(actions: np.ndarray) -> int | None:
     return int(idx[-1]) if idx.size else None
 
 
-def refine_plans(world: Any, plans: Sequence[Any], goals: Sequence[float], *, steps: int = 5, lr: float = 0.05,
-                 spill_weight: float = 1.0, wrt: Sequence[str] = ("theta", "hold"), progress: bool = True,
-                 **sim_kwargs: Any) -> RefinedPlans:
+def refine_plans(
+    world: Any,
+    plans: Sequence[Any],
+    goals: Sequence[float],
+    *,
+    steps: int = 5,
+    lr: float = 0.05,
+    spill_weight: float = 1.0,
+    wrt: Sequence[str] = ("theta", "hold"),
+    progress: bool = True,
+    **sim_kwargs: Any,
+) -> RefinedPlans:
     """Refine the last pour of each plan (``planner.Trajectory``: actions, predicted states) in one batch.
 
     The pour's goal is the share of the water still in the cup that must reach the target:
@@ -74,21 +83,50 @@ def refine_plans(world: Any, plans: Sequence[Any], goals: Sequence[float], *, st
     refined = np.zeros(len(plans), bool)
     empty = np.zeros((0, 4))
     if not rows:
-        return RefinedPlans(out, refined, empty, empty, np.zeros(0), np.zeros(0), np.zeros(0), skipped,
-                            time.perf_counter() - t0)
+        return RefinedPlans(
+            out, refined, empty, empty, np.zeros(0), np.zeros(0), np.zeros(0), skipped, time.perf_counter() - t0
+        )
     params_a = np.array(params)
     try:
-        res = refine_pours(world, params_a, np.array(pour_goal), v_ctrl=np.array(v_ctrl), steps=steps, lr=lr,
-                           wrt=tuple(wrt), spill_weight=spill_weight, progress=progress, **sim_kwargs)
+        res = refine_pours(
+            world,
+            params_a,
+            np.array(pour_goal),
+            v_ctrl=np.array(v_ctrl),
+            steps=steps,
+            lr=lr,
+            wrt=tuple(wrt),
+            spill_weight=spill_weight,
+            progress=progress,
+            **sim_kwargs,
+        )
     except ConfigError as e:  # recorded, the run goes on with the unrefined plans
         for i, _ in rows:
             skipped[i] = f"refinement failed: {e}"
-        return RefinedPlans(out, refined, params_a, params_a, np.array(pour_goal), np.full(len(rows), np.nan),
-                            np.full(len(rows), np.nan), skipped, time.perf_counter() - t0)
+        return RefinedPlans(
+            out,
+            refined,
+            params_a,
+            params_a,
+            np.array(pour_goal),
+            np.full(len(rows), np.nan),
+            np.full(len(rows), np.nan),
+            skipped,
+            time.perf_counter() - t0,
+        )
     for r, (i, k) in enumerate(rows):
         out[i][k, 1], out[i][k, 2] = res.params[r, 2], res.params[r, 3]
         refined[i] = not res.failed[r]
         if res.failed[r]:
             skipped[i] = "refinement went NaN"
-    return RefinedPlans(out, refined, params_a, res.params, np.array(pour_goal), res.loss_initial, res.loss_best,
-                        skipped, time.perf_counter() - t0)
+    return RefinedPlans(
+        out,
+        refined,
+        params_a,
+        res.params,
+        np.array(pour_goal),
+        res.loss_initial,
+        res.loss_best,
+        skipped,
+        time.perf_counter() - t0,
+    )

@@ -55,25 +55,47 @@ from .identity import comparable_config, flatten  # noqa: E402
 from .io import RunFileError, read_csv, write_csv  # noqa: E402
 
 CATEGORY_ORDER = ("successful_pour", "unsuccessful_pour", "stuck_in_plant", "other")
-CATEGORY_COLOURS = {"successful_pour": "#2c7fb8", "unsuccessful_pour": "#f03b20", "stuck_in_plant": "#31a354",
-                    "other": "#bdbdbd"}
+CATEGORY_COLOURS = {
+    "successful_pour": "#2c7fb8",
+    "unsuccessful_pour": "#f03b20",
+    "stuck_in_plant": "#31a354",
+    "other": "#bdbdbd",
+}
 DEFAULT_REFERENCE = "random_plan"
 CEILING_PANELS = {"test_success": "success", "test_plan_found": "found"}  # panel -> key of the ceiling entry
 MODEL_ONLY = "model alone (no MDE)"  # the reference name of the model-only rows in paired tables
 #: what became of a test problem (:func:`test_outcome`), in stacking order, with its colour
-OUTCOMES = {"goal_reached": "#2c7fb8", "clean_pour_wrong_amount": "#a6bddb", "spilled": "#f03b20",
-            "stuck_in_plant": "#31a354", "other": "#bdbdbd", "no_plan_found": "#fed976"}
+OUTCOMES = {
+    "goal_reached": "#2c7fb8",
+    "clean_pour_wrong_amount": "#a6bddb",
+    "spilled": "#f03b20",
+    "stuck_in_plant": "#31a354",
+    "other": "#bdbdbd",
+    "no_plan_found": "#fed976",
+}
 #: test-outcome column: the share of found plans that reached the goal (how good the admitted plans are, apart
 #: from how many the precondition admits: "no plan found")
 GIVEN_PLAN = "goal_reached_given_plan"
-OUTCOME_OF_CATEGORY = {"successful_pour": "clean_pour_wrong_amount", "unsuccessful_pour": "spilled",
-                       "stuck_in_plant": "stuck_in_plant", "other": "other"}
+OUTCOME_OF_CATEGORY = {
+    "successful_pour": "clean_pour_wrong_amount",
+    "unsuccessful_pour": "spilled",
+    "stuck_in_plant": "stuck_in_plant",
+    "other": "other",
+}
 #: one colour per method in every figure, whatever methods a report holds (colour-blind-safe, Okabe-Ito first);
 #: a method not listed gets one of FALLBACK_COLOURS by a stable hash of its name
-METHOD_COLOURS = {"random_plan": "#0072B2", "active_balanced": "#D55E00", "active_admission": "#009E73",
-                  "model_plan": "#CC79A7", "random_actions": "#E69F00", "active_cautious": "#56B4E9",
-                  "active_mean": "#F0E442", "active_straddle": "#882255", "active_thompson": "#44AA99",
-                  "oracle": "#000000"}
+METHOD_COLOURS = {
+    "random_plan": "#0072B2",
+    "active_balanced": "#D55E00",
+    "active_admission": "#009E73",
+    "model_plan": "#CC79A7",
+    "random_actions": "#E69F00",
+    "active_cautious": "#56B4E9",
+    "active_mean": "#F0E442",
+    "active_straddle": "#882255",
+    "active_thompson": "#44AA99",
+    "oracle": "#000000",
+}
 FALLBACK_COLOURS = ("#332288", "#117733", "#999933", "#AA4499", "#661100", "#6699CC", "#888888")
 
 
@@ -140,8 +162,12 @@ def _trajectories_at(rows: list[dict]) -> dict[tuple[str, int], float]:
     return {k: float(np.mean(v)) for k, v in per.items()}
 
 
-def plot_learning_curves(rows: list[dict], path: Path, ceiling: Mapping[str, Any] | None = None,
-                         model_only: Mapping[str, tuple[float, float]] | None = None) -> dict[str, tuple[float, str]]:
+def plot_learning_curves(
+    rows: list[dict],
+    path: Path,
+    ceiling: Mapping[str, Any] | None = None,
+    model_only: Mapping[str, tuple[float, float]] | None = None,
+) -> dict[str, tuple[float, str]]:
     """Fig. 5; with ``ceiling`` (see :func:`load_ceiling`) a dashed line at the ceiling's success and
     plan-found rate, so a reader sees how far each method is from what the MDE can reach at all; with
     ``model_only`` (panel -> (mean, CI half-width) over seeds, :func:`model_only_summary`) a dotted line
@@ -149,8 +175,11 @@ def plot_learning_curves(rows: list[dict], path: Path, ceiling: Mapping[str, Any
     plans than it saves.
 
     Returns panel -> (y, label) of the ceiling lines as drawn (read back from the axes)."""
-    panels = [("test_success", "test success rate"), ("test_plan_found", "test plan found rate"),
-              ("train_goal_reached", "training trajectories reaching the goal")]
+    panels = [
+        ("test_success", "test success rate"),
+        ("test_plan_found", "test plan found rate"),
+        ("train_goal_reached", "training trajectories reaching the goal"),
+    ]
     panels = [(k, t) for k, t in panels if all(k in r for r in rows)]
     fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.8), dpi=110, sharey=True, squeeze=False)
     axes = axes[0]
@@ -166,12 +195,19 @@ def plot_learning_curves(rows: list[dict], path: Path, ceiling: Mapping[str, Any
             mean = np.array([a for a, _ in mc])
             half = np.array([b for _, b in mc])
             colour = method_colour(m)
-            ax.plot(xs, mean, marker="o", ms=3, color=colour,
-                    label=f"{m} ({n_seeds[m]} seed{'s' if n_seeds[m] != 1 else ''})")
+            ax.plot(
+                xs,
+                mean,
+                marker="o",
+                ms=3,
+                color=colour,
+                label=f"{m} ({n_seeds[m]} seed{'s' if n_seeds[m] != 1 else ''})",
+            )
             ax.fill_between(xs, np.clip(mean - half, 0, 1), np.clip(mean + half, 0, 1), color=colour, alpha=0.2)
         if ceiling is not None and key in CEILING_PANELS:
-            line = ax.axhline(float(ceiling[CEILING_PANELS[key]]), color="k", ls="--", lw=1.0,
-                              label=ceiling_label(ceiling))
+            line = ax.axhline(
+                float(ceiling[CEILING_PANELS[key]]), color="k", ls="--", lw=1.0, label=ceiling_label(ceiling)
+            )
             drawn[key] = (float(line.get_ydata()[0]), str(line.get_label()))
         if model_only and key in model_only:
             mean, half = model_only[key]
@@ -204,21 +240,31 @@ def trajectory_type_table(rows: Sequence[Mapping[str, Any]]) -> list[dict]:
         groups[(r["method"], str(r["iteration"]))].append(c)
         groups[(r["method"], "all")].append(c)
     order = sorted(groups, key=lambda k: (k[0], k[1] == "all", int(k[1]) if k[1] != "all" else 0))
-    return [{"method": m, "iteration": it, "n": len(groups[(m, it)]),
-             **{c: round(groups[(m, it)].count(c) / len(groups[(m, it)]), 4) for c in CATEGORY_ORDER}}
-            for m, it in order]
+    return [
+        {
+            "method": m,
+            "iteration": it,
+            "n": len(groups[(m, it)]),
+            **{c: round(groups[(m, it)].count(c) / len(groups[(m, it)]), 4) for c in CATEGORY_ORDER},
+        }
+        for m, it in order
+    ]
 
 
 def trajectory_type_lines(table: list[dict]) -> list[str]:
     """The ``all`` rows of :func:`trajectory_type_table` as a markdown table for ``summary.md``: what the
     methods collected (the paper's Fig. 4a), to read beside what became of the test problems."""
-    lines = ["Training trajectories by type (share over all iterations and seeds; the paper's Fig. 4a):", "",
-             "| method | trajectories | " + " | ".join(c.replace("_", " ") for c in CATEGORY_ORDER) + " |",
-             "|---|---:|" + "---:|" * len(CATEGORY_ORDER)]
+    lines = [
+        "Training trajectories by type (share over all iterations and seeds; the paper's Fig. 4a):",
+        "",
+        "| method | trajectories | " + " | ".join(c.replace("_", " ") for c in CATEGORY_ORDER) + " |",
+        "|---|---:|" + "---:|" * len(CATEGORY_ORDER),
+    ]
     for r in table:
         if r["iteration"] == "all":
-            lines.append(f"| {r['method']} | {r['n']} | " + " | ".join(f"{float(r[c]):.2f}" for c in CATEGORY_ORDER)
-                         + " |")
+            lines.append(
+                f"| {r['method']} | {r['n']} | " + " | ".join(f"{float(r[c]):.2f}" for c in CATEGORY_ORDER) + " |"
+            )
     return lines
 
 
@@ -278,9 +324,15 @@ def test_outcome_table(tests: list[dict], alone: list[dict]) -> list[dict]:
     for m, it in order:
         shares = outcome_shares(groups[(m, it)])
         found = 1.0 - shares["no_plan_found"]
-        table.append({"method": m, "iteration": it, "n": len(groups[(m, it)]),
-                      **{o: round(v, 4) for o, v in shares.items()},
-                      GIVEN_PLAN: round(shares["goal_reached"] / found, 4) if found > 0 else ""})
+        table.append(
+            {
+                "method": m,
+                "iteration": it,
+                "n": len(groups[(m, it)]),
+                **{o: round(v, 4) for o, v in shares.items()},
+                GIVEN_PLAN: round(shares["goal_reached"] / found, 4) if found > 0 else "",
+            }
+        )
     return table
 
 
@@ -289,8 +341,9 @@ def plot_test_outcomes(table: list[dict], path: Path) -> None:
     (the same problems, no MDE) as a bar of its own at the right, so where a method loses plans shows."""
     methods = sorted({r["method"] for r in table if r["method"] != MODEL_ONLY})
     alone = [r for r in table if r["method"] == MODEL_ONLY]
-    fig, axes = plt.subplots(1, max(1, len(methods)), figsize=(1.5 + 3.6 * max(1, len(methods)), 3.8), dpi=110,
-                             sharey=True, squeeze=False)
+    fig, axes = plt.subplots(
+        1, max(1, len(methods)), figsize=(1.5 + 3.6 * max(1, len(methods)), 3.8), dpi=110, sharey=True, squeeze=False
+    )
     for ax, m in zip(axes[0], methods):
         rows = [r for r in table if r["method"] == m and r["iteration"] != "all"]
         labels = [str(r["iteration"]) for r in rows] + (["alone"] if alone else [])
@@ -313,16 +366,20 @@ def plot_test_outcomes(table: list[dict], path: Path) -> None:
 
 def test_outcome_lines(table: list[dict]) -> list[str]:
     """The ``all`` rows of :func:`test_outcome_table` as a markdown table for ``summary.md``."""
-    lines = ["What became of the test problems (share over all iterations and seeds; the last column is the share of "
-             "found plans that reached the goal, which separates how good the admitted plans are from how many "
-             "the precondition admits):", "",
-             "| method | problems | " + " | ".join(map(label, OUTCOMES)) + f" | {label(GIVEN_PLAN)} |",
-             "|---|---:|" + "---:|" * (len(OUTCOMES) + 1)]
+    lines = [
+        "What became of the test problems (share over all iterations and seeds; the last column is the share of "
+        "found plans that reached the goal, which separates how good the admitted plans are from how many "
+        "the precondition admits):",
+        "",
+        "| method | problems | " + " | ".join(map(label, OUTCOMES)) + f" | {label(GIVEN_PLAN)} |",
+        "|---|---:|" + "---:|" * (len(OUTCOMES) + 1),
+    ]
     for r in table:
         if r["iteration"] == "all":
             given = f"{float(r[GIVEN_PLAN]):.2f}" if r[GIVEN_PLAN] != "" else "-"
-            lines.append(f"| {r['method']} | {r['n']} | " + " | ".join(f"{float(r[o]):.2f}" for o in OUTCOMES)
-                         + f" | {given} |")
+            lines.append(
+                f"| {r['method']} | {r['n']} | " + " | ".join(f"{float(r[o]):.2f}" for o in OUTCOMES) + f" | {given} |"
+            )
     return lines
 
 
@@ -332,8 +389,9 @@ def plot_calibration(rows: list[dict], path: Path) -> None:
         its = sorted(curve)
         axes[0].plot(its, [np.mean(curve[i]) for i in its], marker="o", ms=3, color=method_colour(m), label=m)
     axes[0].axhline(0.95, color="k", ls="--", lw=0.8)
-    axes[0].set_title("95% interval coverage (held-out target transitions,\nlabels as fitted: capped at label_max)",
-                      fontsize=9)
+    axes[0].set_title(
+        "95% interval coverage (held-out target transitions,\nlabels as fitted: capped at label_max)", fontsize=9
+    )
     for m, curve in sorted(_curves(rows, "nll").items()):
         its = sorted(curve)
         axes[1].plot(its, [np.mean(curve[i]) for i in its], marker="o", ms=3, color=method_colour(m), label=m)
@@ -353,8 +411,11 @@ def _per_seed(rows: list[dict]) -> dict[str, dict[str, dict[int, tuple]]]:
     """method -> seed -> iteration -> (test success, plan found, training goal reached); last row wins."""
     per: dict[str, dict[str, dict[int, tuple]]] = defaultdict(lambda: defaultdict(dict))
     for r in rows:
-        per[r["method"]][r["seed"]][int(r["iteration"])] = (float(r["test_success"]), float(r["test_plan_found"]),
-                                                            float(r.get("train_goal_reached") or "nan"))
+        per[r["method"]][r["seed"]][int(r["iteration"])] = (
+            float(r["test_success"]),
+            float(r["test_plan_found"]),
+            float(r.get("train_goal_reached") or "nan"),
+        )
     return per
 
 
@@ -372,9 +433,20 @@ def summarise(rows: list[dict]) -> list[dict]:
         train = [np.mean([v[2] for v in its.values()]) for its in per[m].values()]
         final = [its[max(its)][0] for its in per[m].values()]
         (a, ah), (p, ph), (f, fh), (t, th) = mean_ci(auc_s), mean_ci(auc_p), mean_ci(final), mean_ci(train)
-        out.append({"method": m, "seeds": len(per[m]), "auc_success": a, "auc_success_ci95": ah,
-                    "auc_plan_found": p, "auc_plan_found_ci95": ph, "final_success": f, "final_success_ci95": fh,
-                    "train_goal_reached": t, "train_goal_reached_ci95": th})
+        out.append(
+            {
+                "method": m,
+                "seeds": len(per[m]),
+                "auc_success": a,
+                "auc_success_ci95": ah,
+                "auc_plan_found": p,
+                "auc_plan_found_ci95": ph,
+                "final_success": f,
+                "final_success_ci95": fh,
+                "train_goal_reached": t,
+                "train_goal_reached_ci95": th,
+            }
+        )
     return out
 
 
@@ -395,10 +467,30 @@ def pairs_for(methods: Sequence[str], reference: str | None) -> list[tuple[str, 
     return [(m, ref) for m in methods if m != ref]
 
 
-PAIRED_FIELDS = ["method", "reference", "paired_seeds", "diff_auc_success", "diff_auc_success_ci95", "p_success",
-                 "diff_auc_plan_found", "diff_auc_plan_found_ci95", "p_plan_found", "note"]
-PAIRED_SEED_FIELDS = ["method", "reference", "seed", "iterations", "auc_success", "auc_success_reference",
-                      "diff_auc_success", "auc_plan_found", "auc_plan_found_reference", "diff_auc_plan_found"]
+PAIRED_FIELDS = [
+    "method",
+    "reference",
+    "paired_seeds",
+    "diff_auc_success",
+    "diff_auc_success_ci95",
+    "p_success",
+    "diff_auc_plan_found",
+    "diff_auc_plan_found_ci95",
+    "p_plan_found",
+    "note",
+]
+PAIRED_SEED_FIELDS = [
+    "method",
+    "reference",
+    "seed",
+    "iterations",
+    "auc_success",
+    "auc_success_reference",
+    "diff_auc_success",
+    "auc_plan_found",
+    "auc_plan_found_reference",
+    "diff_auc_plan_found",
+]
 
 
 def _seed_key(seed: str) -> tuple:
@@ -436,17 +528,37 @@ def paired(rows: list[dict], reference: str | None = None) -> tuple[list[dict], 
             r_s, r_p = (float(np.mean([per[ref][seed][i][k] for i in its])) for k in (0, 1))
             ds.append(a_s - r_s)
             dp.append(a_p - r_p)
-            seeds_out.append({"method": m, "reference": ref, "seed": seed, "iterations": len(its),
-                              "auc_success": a_s, "auc_success_reference": r_s, "diff_auc_success": a_s - r_s,
-                              "auc_plan_found": a_p, "auc_plan_found_reference": r_p,
-                              "diff_auc_plan_found": a_p - r_p})
+            seeds_out.append(
+                {
+                    "method": m,
+                    "reference": ref,
+                    "seed": seed,
+                    "iterations": len(its),
+                    "auc_success": a_s,
+                    "auc_success_reference": r_s,
+                    "diff_auc_success": a_s - r_s,
+                    "auc_plan_found": a_p,
+                    "auc_plan_found_reference": r_p,
+                    "diff_auc_plan_found": a_p - r_p,
+                }
+            )
         (s, sh), (p, ph) = mean_ci(ds), mean_ci(dp)
         n = len(ds)
         note = "no seed in common" if n == 0 else "one paired seed: no CI, not a test" if n == 1 else ""
-        out.append({"method": m, "reference": ref, "paired_seeds": n, "diff_auc_success": s,
-                    "diff_auc_success_ci95": sh, "p_success": _ttest_p(np.asarray(ds)),
-                    "diff_auc_plan_found": p, "diff_auc_plan_found_ci95": ph,
-                    "p_plan_found": _ttest_p(np.asarray(dp)), "note": note})
+        out.append(
+            {
+                "method": m,
+                "reference": ref,
+                "paired_seeds": n,
+                "diff_auc_success": s,
+                "diff_auc_success_ci95": sh,
+                "p_success": _ttest_p(np.asarray(ds)),
+                "diff_auc_plan_found": p,
+                "diff_auc_plan_found_ci95": ph,
+                "p_plan_found": _ttest_p(np.asarray(dp)),
+                "note": note,
+            }
+        )
     return out, seeds_out
 
 
@@ -454,8 +566,10 @@ def paired_table(rows: list[dict]) -> list[str]:
     """Markdown lines; a difference from fewer than two seeds says so instead of showing ± 0."""
     if not rows:
         return ["No paired comparison: only one method in these runs."]
-    lines = ["| method − reference | paired seeds | Δ AUC success (95% CI) | p | Δ AUC plan found (95% CI) | p |",
-             "|---|---|---|---|---|---|"]
+    lines = [
+        "| method − reference | paired seeds | Δ AUC success (95% CI) | p | Δ AUC plan found (95% CI) | p |",
+        "|---|---|---|---|---|---|",
+    ]
 
     def cell(mean: float, half: float, n: int) -> str:
         if n == 0:
@@ -467,14 +581,18 @@ def paired_table(rows: list[dict]) -> list[str]:
 
     for r in rows:
         n = r["paired_seeds"]
-        lines.append(f"| {r['method']} − {r['reference']} | {n} | "
-                     f"{cell(r['diff_auc_success'], r['diff_auc_success_ci95'], n)} | {pval(r['p_success'])} | "
-                     f"{cell(r['diff_auc_plan_found'], r['diff_auc_plan_found_ci95'], n)} | "
-                     f"{pval(r['p_plan_found'])} |")
+        lines.append(
+            f"| {r['method']} − {r['reference']} | {n} | "
+            f"{cell(r['diff_auc_success'], r['diff_auc_success_ci95'], n)} | {pval(r['p_success'])} | "
+            f"{cell(r['diff_auc_plan_found'], r['diff_auc_plan_found_ci95'], n)} | "
+            f"{pval(r['p_plan_found'])} |"
+        )
     lines.append("")
-    lines.append("Differences of the area under the curve, paired over the seeds both methods ran (and per seed "
-                 "the iterations both have); 95% Student-t CI over those seeds, p from a two-sided paired t-test. "
-                 "With one paired seed there is no CI and no test.")
+    lines.append(
+        "Differences of the area under the curve, paired over the seeds both methods ran (and per seed "
+        "the iterations both have); 95% Student-t CI over those seeds, p from a two-sided paired t-test. "
+        "With one paired seed there is no CI and no test."
+    )
     return lines
 
 
@@ -489,8 +607,10 @@ def model_only_per_seed(rows: list[dict]) -> dict[str, tuple[float, float]]:
 
 def model_only_summary(per_seed: Mapping[str, tuple[float, float]]) -> dict[str, tuple[float, float]]:
     """panel -> (mean, 95% CI half-width) over seeds of the model alone's success and plan-found rates."""
-    return {"test_success": mean_ci([v[0] for v in per_seed.values()]),
-            "test_plan_found": mean_ci([v[1] for v in per_seed.values()])}
+    return {
+        "test_success": mean_ci([v[0] for v in per_seed.values()]),
+        "test_plan_found": mean_ci([v[1] for v in per_seed.values()]),
+    }
 
 
 def model_only_rows(results: list[dict], per_seed: Mapping[str, tuple[float, float]]) -> list[dict]:
@@ -499,8 +619,17 @@ def model_only_rows(results: list[dict], per_seed: Mapping[str, tuple[float, flo
     its: dict[str, set[int]] = defaultdict(set)
     for r in results:
         its[str(r["seed"])].add(int(r["iteration"]))
-    return [{"method": MODEL_ONLY, "seed": s, "iteration": i, "test_success": per_seed[s][0],
-             "test_plan_found": per_seed[s][1]} for s in per_seed for i in sorted(its.get(s, ()))]
+    return [
+        {
+            "method": MODEL_ONLY,
+            "seed": s,
+            "iteration": i,
+            "test_success": per_seed[s][0],
+            "test_plan_found": per_seed[s][1],
+        }
+        for s in per_seed
+        for i in sorted(its.get(s, ()))
+    ]
 
 
 def load_ceiling(path: Path) -> dict:
@@ -514,8 +643,10 @@ def load_ceiling(path: Path) -> dict:
     except json.JSONDecodeError as e:
         raise ValueError(f"--ceiling {path}: not a JSON file ({e})") from None
     if not isinstance(data, dict) or not isinstance(data.get("ceiling"), dict):
-        raise ValueError(f"--ceiling {path}: no 'ceiling' entry; run python -m active.ladder --rungs ceiling "
-                         f"(the file has {sorted(data) if isinstance(data, dict) else type(data).__name__})")
+        raise ValueError(
+            f"--ceiling {path}: no 'ceiling' entry; run python -m active.ladder --rungs ceiling "
+            f"(the file has {sorted(data) if isinstance(data, dict) else type(data).__name__})"
+        )
     return check_ceiling(data["ceiling"], f"--ceiling {path}")
 
 
@@ -554,12 +685,19 @@ def ceiling_line(ceiling: Mapping[str, Any], source: str | None = None) -> str:
     sets = _sets(ceiling)
     if sets > 1:
         ranges = {k: ceiling.get(f"{k}_range") for k in ("success", "found")}
-        spread = "".join(f", {k} {float(r[0]):.2f}-{float(r[1]):.2f}" for k, r in ranges.items()
-                         if isinstance(r, (list, tuple)) and len(r) == 2)
-        return (f"Ceiling ({fit}{src}; the mean of {sets} training sets, each{n_test}{spread}): "
-                f"test success {float(ceiling['success']):.3f}, plan found {float(ceiling['found']):.3f}.")
-    return (f"Ceiling ({fit}{src}): test success {float(ceiling['success']):.3f}, "
-            f"plan found {float(ceiling['found']):.3f}{n_test}.")
+        spread = "".join(
+            f", {k} {float(r[0]):.2f}-{float(r[1]):.2f}"
+            for k, r in ranges.items()
+            if isinstance(r, (list, tuple)) and len(r) == 2
+        )
+        return (
+            f"Ceiling ({fit}{src}; the mean of {sets} training sets, each{n_test}{spread}): "
+            f"test success {float(ceiling['success']):.3f}, plan found {float(ceiling['found']):.3f}."
+        )
+    return (
+        f"Ceiling ({fit}{src}): test success {float(ceiling['success']):.3f}, "
+        f"plan found {float(ceiling['found']):.3f}{n_test}."
+    )
 
 
 class ReportError(ValueError):
@@ -571,8 +709,9 @@ def method_config(cfg: Mapping[str, Any], method: str) -> dict:
     other methods, in one process or a sweep, are one curve exactly when these agree."""
     c = comparable_config(cfg)
     c.pop("seed", None)
-    c["methods"] = {method: comparable_config({"methods": cfg.get("methods") or {}, "method": method})["methods"]
-                    .get(method)}
+    c["methods"] = {
+        method: comparable_config({"methods": cfg.get("methods") or {}, "method": method})["methods"].get(method)
+    }
     return c
 
 
@@ -582,7 +721,7 @@ def check_one_configuration_per_method(dirs: Sequence[Path]) -> None:
     seen: dict[str, tuple[str, dict, Path]] = {}
     for d in dirs:
         d = Path(d)
-        for f in ([d] if d.is_file() else sorted(d.rglob("results.csv"))):
+        for f in [d] if d.is_file() else sorted(d.rglob("results.csv")):
             cfg_path = f.parent.parent / "config.json"
             if not cfg_path.is_file():
                 continue
@@ -597,14 +736,20 @@ def check_one_configuration_per_method(dirs: Sequence[Path]) -> None:
                 seen[method] = (key, mc, cfg_path)
             elif seen[method][0] != key:
                 a, b = flatten(seen[method][1]), flatten(mc)
-                diffs = [f"{k}: {a.get(k, '(absent)')!r} vs {b.get(k, '(absent)')!r}" for k in sorted(set(a) | set(b))
-                         if a.get(k, "(absent)") != b.get(k, "(absent)")]
-                raise ReportError(f"{method}: runs of different configurations ({seen[method][2]} and {cfg_path}: "
-                                  f"{'; '.join(diffs[:8])}); report them apart (one active.report call each)")
+                diffs = [
+                    f"{k}: {a.get(k, '(absent)')!r} vs {b.get(k, '(absent)')!r}"
+                    for k in sorted(set(a) | set(b))
+                    if a.get(k, "(absent)") != b.get(k, "(absent)")
+                ]
+                raise ReportError(
+                    f"{method}: runs of different configurations ({seen[method][2]} and {cfg_path}: "
+                    f"{'; '.join(diffs[:8])}); report them apart (one active.report call each)"
+                )
 
 
-def report(dirs: Sequence[Path], out: Path, reference: str | None = None,
-           ceiling: Path | str | Mapping[str, Any] | None = None) -> dict:
+def report(
+    dirs: Sequence[Path], out: Path, reference: str | None = None, ceiling: Path | str | Mapping[str, Any] | None = None
+) -> dict:
     """Figures and tables of the runs below ``dirs``; ``reference`` and ``ceiling`` (a ladder.json, or
     its ``ceiling`` entry) are checked before anything is drawn."""
     out = Path(out)
@@ -628,14 +773,18 @@ def report(dirs: Sequence[Path], out: Path, reference: str | None = None,
     pair_rows, pair_seeds = paired(results, reference)
     write_csv(out / "paired.csv", pair_rows, fields=PAIRED_FIELDS)
     write_csv(out / "paired_seeds.csv", pair_seeds, fields=PAIRED_SEED_FIELDS)
-    lines = ["| method | seeds | AUC success (95% CI) | AUC plan found (95% CI) | final success (95% CI) "
-             "| training goal reached (95% CI) |",
-             "|---|---|---|---|---|---|"]
+    lines = [
+        "| method | seeds | AUC success (95% CI) | AUC plan found (95% CI) | final success (95% CI) "
+        "| training goal reached (95% CI) |",
+        "|---|---|---|---|---|---|",
+    ]
     for s in summary:
-        lines.append(f"| {s['method']} | {s['seeds']} | {s['auc_success']:.3f} ± {s['auc_success_ci95']:.3f} | "
-                     f"{s['auc_plan_found']:.3f} ± {s['auc_plan_found_ci95']:.3f} | "
-                     f"{s['final_success']:.3f} ± {s['final_success_ci95']:.3f} | "
-                     f"{s['train_goal_reached']:.3f} ± {s['train_goal_reached_ci95']:.3f} |")
+        lines.append(
+            f"| {s['method']} | {s['seeds']} | {s['auc_success']:.3f} ± {s['auc_success_ci95']:.3f} | "
+            f"{s['auc_plan_found']:.3f} ± {s['auc_plan_found_ci95']:.3f} | "
+            f"{s['final_success']:.3f} ± {s['final_success_ci95']:.3f} | "
+            f"{s['train_goal_reached']:.3f} ± {s['train_goal_reached_ci95']:.3f} |"
+        )
     if ceiling is not None:
         lines += ["", ceiling_line(ceiling, ceiling_src)]
     lines += ["", *paired_table(pair_rows)]
@@ -645,12 +794,23 @@ def report(dirs: Sequence[Path], out: Path, reference: str | None = None,
         alone_pairs, alone_seeds = paired(results + model_only_rows(results, alone), MODEL_ONLY)
         write_csv(out / "paired_model_only.csv", alone_pairs, fields=PAIRED_FIELDS)
         write_csv(out / "paired_model_only_seeds.csv", alone_seeds, fields=PAIRED_SEED_FIELDS)
-        lines += ["", f"The {MODEL_ONLY}, the same test problems, planner and budget, {len(alone)} seed(s): "
-                      f"test success {s:.3f} ± {sh:.3f}, plan found {f:.3f} ± {fh:.3f}. Each method against it:",
-                  "", *paired_table(alone_pairs)[:-2]]
-    made = {"learning_curves": str(out / "learning_curves.png"), "summary": summary,
-            "paired": pair_rows, "paired_seeds": pair_seeds, "ceiling": ceiling, "ceiling_lines": ceiling_lines,
-            "model_only": alone_summary, "paired_model_only": alone_pairs}
+        lines += [
+            "",
+            f"The {MODEL_ONLY}, the same test problems, planner and budget, {len(alone)} seed(s): "
+            f"test success {s:.3f} ± {sh:.3f}, plan found {f:.3f} ± {fh:.3f}. Each method against it:",
+            "",
+            *paired_table(alone_pairs)[:-2],
+        ]
+    made = {
+        "learning_curves": str(out / "learning_curves.png"),
+        "summary": summary,
+        "paired": pair_rows,
+        "paired_seeds": pair_seeds,
+        "ceiling": ceiling,
+        "ceiling_lines": ceiling_lines,
+        "model_only": alone_summary,
+        "paired_model_only": alone_pairs,
+    }
     tests = collect(dirs, "tests.csv")
     if tests:
         table = test_outcome_table(tests, alone_rows)
@@ -673,15 +833,25 @@ def report(dirs: Sequence[Path], out: Path, reference: str | None = None,
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m active.report", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m active.report", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("dirs", nargs="+", type=Path, help="run or sweep directories (searched recursively)")
     ap.add_argument("--out", type=Path, default=Path("report"))
-    ap.add_argument("--reference", default=None, metavar="METHOD",
-                    help=f"method the others are compared with, paired over seeds (default: {DEFAULT_REFERENCE} "
-                         "when present, otherwise every pair)")
-    ap.add_argument("--ceiling", type=Path, default=None, metavar="LADDER_JSON",
-                    help="ladder.json of python -m active.ladder: its ceiling as a dashed line and in the summary")
+    ap.add_argument(
+        "--reference",
+        default=None,
+        metavar="METHOD",
+        help=f"method the others are compared with, paired over seeds (default: {DEFAULT_REFERENCE} "
+        "when present, otherwise every pair)",
+    )
+    ap.add_argument(
+        "--ceiling",
+        type=Path,
+        default=None,
+        metavar="LADDER_JSON",
+        help="ladder.json of python -m active.ladder: its ceiling as a dashed line and in the summary",
+    )
     args = ap.parse_args(argv)
     try:
         made = report(args.dirs, args.out, reference=args.reference, ceiling=args.ceiling)

@@ -97,8 +97,9 @@ class RunSpec:
         return {**self.cfg, "seed": s}
 
 
-def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path,
-                   on_accept: Callable[[Path], None] | None = None) -> dict:
+def run_experiment(
+    cfg: Mapping[str, Any], out_dir: str | Path, on_accept: Callable[[Path], None] | None = None
+) -> dict:
     """Run (or resume) every method of ``cfg`` into ``out_dir``; returns the report summary.
 
     ``runner``: ``sequential`` runs the methods one after another; ``lockstep`` advances all of them
@@ -127,9 +128,19 @@ def run_experiment(cfg: Mapping[str, Any], out_dir: str | Path,
         executor = PouringExecutor(spec.world)
         for s in spec.seeds:
             if calibrations[s] is None:
-                calibrations[s] = save_calibration(spec.seed_dirs[s] / "calibration_set.pt", make_calibration_set(
-                    spec.world, dyn, executor, ActionSampler(spec.planner_cfg), spec.exp.calibration_trajectories,
-                    spec.exp.random_actions_length, s), spec.seed_cfg(s))
+                calibrations[s] = save_calibration(
+                    spec.seed_dirs[s] / "calibration_set.pt",
+                    make_calibration_set(
+                        spec.world,
+                        dyn,
+                        executor,
+                        ActionSampler(spec.planner_cfg),
+                        spec.exp.calibration_trajectories,
+                        spec.exp.random_actions_length,
+                        s,
+                    ),
+                    spec.seed_cfg(s),
+                )
         # planner worker processes (spawned on first use, shared by all methods; results do not depend on them)
         with PlanPool(dyn, spec.planner_cfg, spec.workers, preload=[spec.mde_module]) as pool:
             measure_model_alone(spec, pool, executor)
@@ -161,12 +172,27 @@ def prepare_run(cfg: Mapping[str, Any], out: Path) -> RunSpec:
     if wandb_cfg.get("mode", "offline") not in WANDB_MODES:
         raise ValueError(f"wandb.mode = {wandb_cfg.get('mode')!r}: allowed one of {WANDB_MODES}")
     check_dynamics(cfg["dynamics"], cfg["world"])  # its config; the cache is writable if the model must be trained
-    test_problems = {s: sample_problems(world, exp.test_problems, derive_seed(s, "test"), world="target") for s in seeds}
+    test_problems = {
+        s: sample_problems(world, exp.test_problems, derive_seed(s, "test"), world="target") for s in seeds
+    }
     check_writable(list(dict.fromkeys([out, *seed_dirs.values()])))
-    return RunSpec(cfg=cfg, runner=runner, seeds=seeds, single=single, seed_dirs=seed_dirs, exp=exp, world=world,
-                   planner_cfg=planner_cfg, workers=workers, make_acq=make_acq, make_mde=make_mde,
-                   mde_module=mde_module, wandb=wandb_cfg, test_problems=test_problems,
-                   progress=bool(cfg.get("progress", True)))
+    return RunSpec(
+        cfg=cfg,
+        runner=runner,
+        seeds=seeds,
+        single=single,
+        seed_dirs=seed_dirs,
+        exp=exp,
+        world=world,
+        planner_cfg=planner_cfg,
+        workers=workers,
+        make_acq=make_acq,
+        make_mde=make_mde,
+        mde_module=mde_module,
+        wandb=wandb_cfg,
+        test_problems=test_problems,
+        progress=bool(cfg.get("progress", True)),
+    )
 
 
 def accept_directories(spec: RunSpec, stack: contextlib.ExitStack) -> dict[int, dict | None]:
@@ -187,8 +213,11 @@ def accept_directories(spec: RunSpec, stack: contextlib.ExitStack) -> dict[int, 
 def measure_model_alone(spec: RunSpec, pool: PlanPool, executor: PouringExecutor) -> None:
     """The model alone on each seed's test problems (once per seed): the line every method has to beat."""
     digests = {s: config_digest(spec.seed_cfg(s)) for s in spec.seeds}
-    missing = {s: spec.test_problems[s] for s in spec.seeds
-               if baseline.load(spec.seed_dirs[s] / baseline.FILE, digests[s], spec.exp.test_problems) is None}
+    missing = {
+        s: spec.test_problems[s]
+        for s in spec.seeds
+        if baseline.load(spec.seed_dirs[s] / baseline.FILE, digests[s], spec.exp.test_problems) is None
+    }
     if not missing:
         return
     log.info("the model alone (no MDE) on the test problems of seed(s) %s", sorted(missing))
@@ -203,10 +232,23 @@ def measure_model_alone(spec: RunSpec, pool: PlanPool, executor: PouringExecutor
 
 def _contexts(spec: RunSpec, dyn: Any, executor: PouringExecutor, calibrations: dict, pool: PlanPool) -> dict:
     """Each seed's :class:`Context` (what every method of the seed shares)."""
-    return {s: Context(cfg=spec.seed_cfg(s), exp=spec.exp, world=spec.world, planner_cfg=spec.planner_cfg,
-                       dynamics=dyn, executor=executor, test_problems=spec.test_problems[s],
-                       calibration=calibrations[s], out=spec.seed_dirs[s], seed=s, progress=spec.progress, pool=pool)
-            for s in spec.seeds}
+    return {
+        s: Context(
+            cfg=spec.seed_cfg(s),
+            exp=spec.exp,
+            world=spec.world,
+            planner_cfg=spec.planner_cfg,
+            dynamics=dyn,
+            executor=executor,
+            test_problems=spec.test_problems[s],
+            calibration=calibrations[s],
+            out=spec.seed_dirs[s],
+            seed=s,
+            progress=spec.progress,
+            pool=pool,
+        )
+        for s in spec.seeds
+    }
 
 
 def run_methods(spec: RunSpec, contexts: dict[int, Context], pool: PlanPool, executor: PouringExecutor) -> dict:
@@ -215,18 +257,28 @@ def run_methods(spec: RunSpec, contexts: dict[int, Context], pool: PlanPool, exe
     exp = spec.exp
 
     def start(s: int, method: str) -> MethodRun:
-        tracker = Tracker(spec.wandb.get("mode", "offline"), spec.wandb.get("project", "active-mde"),
-                          f"{exp.name}-{method}-seed{s}", spec.seed_cfg(s), spec.seed_dirs[s],
-                          entity=spec.wandb.get("entity"), group=f"{exp.name}-{method}",
-                          run_id=f"{config_digest(spec.seed_cfg(s))}-{method}-seed{s}")
+        tracker = Tracker(
+            spec.wandb.get("mode", "offline"),
+            spec.wandb.get("project", "active-mde"),
+            f"{exp.name}-{method}-seed{s}",
+            spec.seed_cfg(s),
+            spec.seed_dirs[s],
+            entity=spec.wandb.get("entity"),
+            group=f"{exp.name}-{method}",
+            run_id=f"{config_digest(spec.seed_cfg(s))}-{method}-seed{s}",
+        )
         return MethodRun(contexts[s], method, spec.make_mde, spec.make_acq, tracker)
 
     def report_seed(s: int, runs: list[MethodRun]) -> dict:
         d = spec.seed_dirs[s]
         made = report([d], d / "report")  # figures for W&B and partial runs
         for r in runs:
-            r.tracker.log_images({"learning_curves": d / "report" / "learning_curves.png",
-                                  "trajectory_types": d / "report" / "trajectory_types.png"})
+            r.tracker.log_images(
+                {
+                    "learning_curves": d / "report" / "learning_curves.png",
+                    "trajectory_types": d / "report" / "trajectory_types.png",
+                }
+            )
             r.tracker.finish()
         return made
 
@@ -268,8 +320,9 @@ def run_settings(cfg: Mapping[str, Any]) -> tuple[Any, Any, Any, int]:
     """What a run of ``cfg`` is set to, validated before any compute: its ``ExperimentConfig``, its
     ``WorldConfig`` (checked against the geometry), the ``PlannerConfig`` every planning call gets and
     the number of planner processes. Errors name the key and what is allowed."""
-    exp = ExperimentConfig.from_mapping(cfg["experiment"], method=str(cfg.get("method", "all")),
-                                       registry=cfg.get("methods"))
+    exp = ExperimentConfig.from_mapping(
+        cfg["experiment"], method=str(cfg.get("method", "all")), registry=cfg.get("methods")
+    )
     world = WorldConfig.from_mapping(cfg["world"])
     check_geometry(world)
     planner_cfg = build_planner_config(world, cfg["planner"], exp)

@@ -40,8 +40,12 @@ def read_recorded_config(out: Path) -> dict | None:
         rec = json.loads(path.read_text())
         return rec if isinstance(rec, dict) else None
     except (OSError, ValueError) as e:
-        log.warning("%s is unreadable (%s); the state files decide whether this directory can be resumed, and "
-                    "it is rewritten once they have been checked", path, e)
+        log.warning(
+            "%s is unreadable (%s); the state files decide whether this directory can be resumed, and "
+            "it is rewritten once they have been checked",
+            path,
+            e,
+        )
         return None
 
 
@@ -49,10 +53,12 @@ def state_fix(path: Path) -> str:
     """What to do about an unusable ``<method>/state.pt``, and what survives it."""
     kept = sorted({p.name for pat in METHOD_FILES for p in path.parent.glob(pat)})
     kept_txt = f"{', '.join(kept)} beside it are intact and kept" if kept else "nothing else of this method was saved"
-    return (f"{kept_txt}, as are the other methods of {path.parent.parent} and its calibration set, but this method "
-            f"cannot resume without state.pt. Restore it from a backup, or delete it and run the same command again "
-            f"to redo this method from iteration 1 (its CSVs, dataset.pt and checkpoints are then rewritten: copy "
-            f"them elsewhere first to keep them)")
+    return (
+        f"{kept_txt}, as are the other methods of {path.parent.parent} and its calibration set, but this method "
+        f"cannot resume without state.pt. Restore it from a backup, or delete it and run the same command again "
+        f"to redo this method from iteration 1 (its CSVs, dataset.pt and checkpoints are then rewritten: copy "
+        f"them elsewhere first to keep them)"
+    )
 
 
 def load_state(path: Path) -> dict:
@@ -74,7 +80,8 @@ def check_state_format(st: Any, path: Path) -> None:
         raise RunFileError(
             f"{path} has run format version {version}; this code reads version {RUN_FORMAT_VERSION}. Its results "
             f"(the CSVs beside it) stay readable by active.report, but the run cannot be extended: rerun the "
-            f"experiment into a new directory (hydra.run.dir=...), or resume it with the release that wrote it")
+            f"experiment into a new directory (hydra.run.dir=...), or resume it with the release that wrote it"
+        )
 
 
 def check_run_directory(out: Path, cfg: Mapping[str, Any]) -> bool:
@@ -102,30 +109,40 @@ def check_run_directory(out: Path, cfg: Mapping[str, Any]) -> bool:
             check_checkpoint(state_path.parent / st["mde_path"], st.get("mde_sha256"), state_path)
     diffs = config_differences(recorded, cfg)
     if mismatched:
-        what = (f"it differs in {'; '.join(diffs)}" if diffs else
-                "its config.json is missing or unreadable, so the differing fields cannot be listed")
+        what = (
+            f"it differs in {'; '.join(diffs)}"
+            if diffs
+            else "its config.json is missing or unreadable, so the differing fields cannot be listed"
+        )
         raise RunDirectoryError(
             f"{out} holds results of a different configuration ({', '.join(mismatched)}): {what}. Nothing was "
             f"changed. Resume it with its own configuration (see {out / 'config.json'}), or write this run to a new "
-            f"directory (hydra.run.dir=...); to discard those results, delete {out}.")
+            f"directory (hydra.run.dir=...); to discard those results, delete {out}."
+        )
     if longer:
         raise RunDirectoryError(
             f"experiment.iterations = {iterations}: {out} holds more completed iterations ({', '.join(longer)}). "
             f"Nothing was changed. Allowed: at least as many iterations as it holds, or a new directory "
-            f"(hydra.run.dir=...)")
+            f"(hydra.run.dir=...)"
+        )
     if diffs and not resumable:
-        log.warning("%s was started with another configuration (%s) but completed no iteration: starting afresh",
-                    out, "; ".join(diffs))
+        log.warning(
+            "%s was started with another configuration (%s) but completed no iteration: starting afresh",
+            out,
+            "; ".join(diffs),
+        )
     return resumable
 
 
 def check_checkpoint(path: Path, sha256: str | None, state_path: Path) -> None:
     """Cheap pre-compute check that the MDE checkpoint named by ``state.pt`` exists and has the bytes it had when
     the state was saved (``state.pt`` records its sha256: damage inside a tensor would otherwise load silently)."""
-    fix = (f"it is the MDE of the last completed iteration, named by {state_path}. Restore it from a backup, or "
-           f"delete {state_path} and run the same command again to redo this method from iteration 1 "
-           f"({', '.join(METHOD_FILES[:5])} beside it are intact but are rewritten then: copy them elsewhere first "
-           f"to keep them)")
+    fix = (
+        f"it is the MDE of the last completed iteration, named by {state_path}. Restore it from a backup, or "
+        f"delete {state_path} and run the same command again to redo this method from iteration 1 "
+        f"({', '.join(METHOD_FILES[:5])} beside it are intact but are rewritten then: copy them elsewhere first "
+        f"to keep them)"
+    )
     if not path.is_file():
         raise RunFileError(f"{path} is missing; {fix}")
     if file_sha256(path) != sha256:
@@ -138,22 +155,27 @@ def load_mde_checkpoint(mde_cls: Any, path: Path, expected: Any, X: Any, state_p
     ``expected`` is a fresh MDE of the configured kind: the checkpoint must have its
     configuration and have been fitted on the first ``n_train`` rows of the saved data ``X``.
     """
-    fix = (f"restore it from a backup, or delete {state_path} and run the same command again to redo this method "
-           f"from iteration 1 (the CSVs and dataset.pt beside it are intact but are rewritten then)")
+    fix = (
+        f"restore it from a backup, or delete {state_path} and run the same command again to redo this method "
+        f"from iteration 1 (the CSVs and dataset.pt beside it are intact but are rewritten then)"
+    )
     try:
         mde = mde_cls.load(path)
     except Exception as e:  # noqa: BLE001
         raise RunFileError(f"MDE checkpoint {path} is unreadable ({describe_load_error(e)}); {fix}") from None
     exp_cfg, got_cfg = getattr(expected, "config", None), getattr(mde, "config", None)
     if exp_cfg is not None and got_cfg is not None and _as_dict(got_cfg) != _as_dict(exp_cfg):
-        raise RunFileError(f"MDE checkpoint {path} was fitted with another MDE configuration than this run's "
-                           f"(mde.*); {fix}")
+        raise RunFileError(
+            f"MDE checkpoint {path} was fitted with another MDE configuration than this run's (mde.*); {fix}"
+        )
     n, train_X = getattr(mde, "n_train", None), getattr(mde, "train_X", None)
     if n is not None and train_X is not None and n > 0:
         X = torch.as_tensor(X)
         if n > len(X) or not torch.equal(torch.as_tensor(train_X).to(X.dtype), X[:n]):
-            raise RunFileError(f"MDE checkpoint {path} was fitted on data that is not this method's saved data "
-                               f"({n} points, {len(X)} saved in {state_path}); {fix}")
+            raise RunFileError(
+                f"MDE checkpoint {path} was fitted on data that is not this method's saved data "
+                f"({n} points, {len(X)} saved in {state_path}); {fix}"
+            )
     return mde
 
 

@@ -62,15 +62,19 @@ class RunLock:
         """Take the lock or raise :class:`RunLockedError`; a dead owner's lock is taken over (logged)."""
         key = os.path.realpath(self.path)
         if key in _HELD:  # checked before opening: closing a descriptor would drop our own lock
-            raise RunLockedError(f"the run directory {self.folder} is already in use by a run of this process "
-                                 f"(pid {os.getpid()}); use another output directory")
+            raise RunLockedError(
+                f"the run directory {self.folder} is already in use by a run of this process "
+                f"(pid {os.getpid()}); use another output directory"
+            )
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o666)
         except OSError as e:
-            raise RunDirectoryError(f"cannot create the run lock {self.path} ({e.strerror or e}): the output "
-                                    f"directory is not writable; fix its permissions or choose another one "
-                                    f"(hydra.run.dir=...)") from None
+            raise RunDirectoryError(
+                f"cannot create the run lock {self.path} ({e.strerror or e}): the output "
+                f"directory is not writable; fix its permissions or choose another one "
+                f"(hydra.run.dir=...)"
+            ) from None
         try:
             fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as e:
@@ -83,15 +87,26 @@ class RunLock:
             if owner and not mine and _alive(owner) is not False:
                 os.close(fd)
                 raise RunLockedError(_refusal(self.folder, self.path, owner, locks=False)) from None
-            log.warning("%s: the file system does not support locks (%s); relying on the pid record in %s",
-                        self.folder, e.strerror or e, self.path)
+            log.warning(
+                "%s: the file system does not support locks (%s); relying on the pid record in %s",
+                self.folder,
+                e.strerror or e,
+                self.path,
+            )
         previous = _read_record(fd)
         if previous:
             self.previous = previous
-            log.warning("taking over %s from %s, which ended without releasing it (killed?); resuming its work",
-                        self.path, _describe(previous))
-        record = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.strftime("%Y-%m-%d %H:%M:%S"),
-                  "command": " ".join(sys.argv)[:500]}
+            log.warning(
+                "taking over %s from %s, which ended without releasing it (killed?); resuming its work",
+                self.path,
+                _describe(previous),
+            )
+        record = {
+            "pid": os.getpid(),
+            "host": socket.gethostname(),
+            "started": time.strftime("%Y-%m-%d %H:%M:%S"),
+            "command": " ".join(sys.argv)[:500],
+        }
         data = (json.dumps(record) + "\n").encode()
         os.ftruncate(fd, 0)
         os.pwrite(fd, data, 0)
@@ -165,13 +180,19 @@ def _describe(owner: dict[str, Any] | None) -> str:
         return "another process (its record is not written yet)"
     if "pid" not in owner:
         return f"an unknown owner (record {owner.get('raw', '')!r})"
-    return (f"pid {owner['pid']} on host {owner.get('host', '?')}, started {owner.get('started', '?')}"
-            + (f" ({owner['command']})" if owner.get("command") else ""))
+    return f"pid {owner['pid']} on host {owner.get('host', '?')}, started {owner.get('started', '?')}" + (
+        f" ({owner['command']})" if owner.get("command") else ""
+    )
 
 
 def _refusal(folder: Path, path: Path, owner: dict[str, Any] | None, locks: bool = True) -> str:
-    gone = ("if that run is gone (its node crashed), its lock expires by itself within minutes"
-            if locks else f"if that run has ended, delete {path}")
-    return (f"the run directory {folder} is in use by another run: {_describe(owner)}. Two runs writing one "
-            f"directory would overwrite each other's results, so this one stops before doing anything. Wait for "
-            f"it to finish, or write to another directory (hydra.run.dir=... or another seed / method); {gone}.")
+    gone = (
+        "if that run is gone (its node crashed), its lock expires by itself within minutes"
+        if locks
+        else f"if that run has ended, delete {path}"
+    )
+    return (
+        f"the run directory {folder} is in use by another run: {_describe(owner)}. Two runs writing one "
+        f"directory would overwrite each other's results, so this one stops before doing anything. Wait for "
+        f"it to finish, or write to another directory (hydra.run.dir=... or another seed / method); {gone}."
+    )

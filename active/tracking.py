@@ -20,8 +20,17 @@ MODES = ("offline", "online", "disabled")
 
 
 class Tracker:
-    def __init__(self, mode: str, project: str, run_name: str, config: Mapping[str, Any], out_dir: Path,
-                 entity: str | None = None, group: str | None = None, run_id: str | None = None) -> None:
+    def __init__(
+        self,
+        mode: str,
+        project: str,
+        run_name: str,
+        config: Mapping[str, Any],
+        out_dir: Path,
+        entity: str | None = None,
+        group: str | None = None,
+        run_id: str | None = None,
+    ) -> None:
         if mode not in MODES:
             raise ValueError(f"wandb.mode = {mode!r}: allowed one of {MODES}")
         self.run = None
@@ -32,10 +41,19 @@ class Tracker:
 
             os.environ.setdefault("WANDB_SILENT", "true")
             self._wandb = wandb
-            self.run = wandb.init(mode=mode, project=project, entity=entity, group=group, name=run_name,
-                                  id=run_id, resume="allow" if run_id else None,
-                                  config=dict(config), dir=str(out_dir), reinit="create_new",
-                                  settings=wandb.Settings(console="off", x_disable_stats=True))
+            self.run = wandb.init(
+                mode=mode,
+                project=project,
+                entity=entity,
+                group=group,
+                name=run_name,
+                id=run_id,
+                resume="allow" if run_id else None,
+                config=dict(config),
+                dir=str(out_dir),
+                reinit="create_new",
+                settings=wandb.Settings(console="off", x_disable_stats=True),
+            )
         except Exception as e:  # a broken W&B must not stop the experiment
             log.warning("W&B disabled for this run: %s", e)
             self.run = None
@@ -44,8 +62,11 @@ class Tracker:
         self._safe(lambda: self.run.log(dict(metrics), step=step))
 
     def log_images(self, images: Mapping[str, Path], step: int | None = None) -> None:
-        self._safe(lambda: self.run.log({k: self._wandb.Image(str(p)) for k, p in images.items() if Path(p).exists()},
-                                        step=step))
+        self._safe(
+            lambda: self.run.log(
+                {k: self._wandb.Image(str(p)) for k, p in images.items() if Path(p).exists()}, step=step
+            )
+        )
 
     def finish(self) -> None:
         self._safe(lambda: self.run.finish())

@@ -68,9 +68,17 @@ def labelled_set(paths: Sequence[Path], overrides: Sequence[str], trajectories: 
     y = label_transitions(dyn, s, a, s2, world.distance_weights)
     pour = a[:, 0] == POUR
     partial = partial_first_pours(s, a, s2)
-    return {"X": torch.as_tensor(features(s, a)), "y": torch.as_tensor(y), "good": y < exp.d_max, "pour": pour,
-            "partial": partial, "exp": exp, "n": len(y), "mde": cfg["mde"],
-            "label_mean_partial": float(np.mean(y[partial])) if partial.any() else None}
+    return {
+        "X": torch.as_tensor(features(s, a)),
+        "y": torch.as_tensor(y),
+        "good": y < exp.d_max,
+        "pour": pour,
+        "partial": partial,
+        "exp": exp,
+        "n": len(y),
+        "mde": cfg["mde"],
+        "label_mean_partial": float(np.mean(y[partial])) if partial.any() else None,
+    }
 
 
 def score(mde: Any, data: dict[str, Any]) -> dict[str, float | None]:
@@ -82,9 +90,14 @@ def score(mde: Any, data: dict[str, Any]) -> dict[str, float | None]:
     def share(m: np.ndarray) -> float | None:
         return float(np.mean(ok[m])) if m.any() else None
 
-    return {"pour_good": share(pour & good), "pour_bad": share(pour & ~good), "move_good": share(~pour & good),
-            "move_bad": share(~pour & ~good), "partial_good": share(partial & good),
-            "partial_good_std_median": float(np.median(sd[partial & good])) if (partial & good).any() else None}
+    return {
+        "pour_good": share(pour & good),
+        "pour_bad": share(pour & ~good),
+        "move_good": share(~pour & good),
+        "move_bad": share(~pour & ~good),
+        "partial_good": share(partial & good),
+        "partial_good_std_median": float(np.median(sd[partial & good])) if (partial & good).any() else None,
+    }
 
 
 def refitted(method_dir: Path, iterations: Sequence[int], mde_cfg: Any) -> list[tuple[int, Any]]:
@@ -109,8 +122,9 @@ def refitted(method_dir: Path, iterations: Sequence[int], mde_cfg: Any) -> list[
     return out
 
 
-def run(run_dirs: Sequence[Path], sets: Sequence[Path], overrides: Sequence[str],
-        refit: Sequence[int] | None = None) -> dict[str, Any]:
+def run(
+    run_dirs: Sequence[Path], sets: Sequence[Path], overrides: Sequence[str], refit: Sequence[int] | None = None
+) -> dict[str, Any]:
     import mde as mde_pkg
 
     files = sorted(f for d in run_dirs for f in Path(d).glob("seed*/*/mde_iter*.pt") if _MDE_FILE.search(f.name))
@@ -124,18 +138,32 @@ def run(run_dirs: Sequence[Path], sets: Sequence[Path], overrides: Sequence[str]
             rows += [{**base, "iteration": it, **score(m, data)} for it, m in refitted(method_dir, refit, data["mde"])]
     else:
         for f in files:
-            row = {"run": str(f.parents[2]), "seed": f.parents[1].name, "method": f.parent.name,
-                   "iteration": int(_MDE_FILE.search(f.name).group(1))}
+            row = {
+                "run": str(f.parents[2]),
+                "seed": f.parents[1].name,
+                "method": f.parent.name,
+                "iteration": int(_MDE_FILE.search(f.name).group(1)),
+            }
             rows.append({**row, **score(mde_pkg.load(f), data)})
     counts = {k: int(np.sum(data[m])) for k, m in (("pours", "pour"), ("partial_first_pours", "partial"))}
-    counts.update(transitions=data["n"], pours_good=int(np.sum(data["pour"] & data["good"])),
-                  partial_good=int(np.sum(data["partial"] & data["good"])))
-    return {"sets": [str(p) for p in sets], "overrides": list(overrides), "refit": list(refit or []), "counts": counts,
-            "label_mean_partial": data["label_mean_partial"], "rows": rows}
+    counts.update(
+        transitions=data["n"],
+        pours_good=int(np.sum(data["pour"] & data["good"])),
+        partial_good=int(np.sum(data["partial"] & data["good"])),
+    )
+    return {
+        "sets": [str(p) for p in sets],
+        "overrides": list(overrides),
+        "refit": list(refit or []),
+        "counts": counts,
+        "label_mean_partial": data["label_mean_partial"],
+        "rows": rows,
+    }
 
 
-def leave_one_set_out(sets: Sequence[Path], overrides: Sequence[str],
-                      sizes: Sequence[int | None] = (None,)) -> dict[str, Any]:
+def leave_one_set_out(
+    sets: Sequence[Path], overrides: Sequence[str], sizes: Sequence[int | None] = (None,)
+) -> dict[str, Any]:
     """The config's MDE fitted on all sets but one, scored on the one left out (a ceiling-sized reference);
     ``sizes``: trajectories taken from each training set (None: all), one fit per size (rows' ``iteration``:
     the training trajectories in all)."""
@@ -153,15 +181,29 @@ def leave_one_set_out(sets: Sequence[Path], overrides: Sequence[str],
             mde.fit(np.concatenate([d["X"].numpy() for d in rest]), np.concatenate([d["y"].numpy() for d in rest]))
             with np.load(sets[k]) as f:
                 n_set = len(f["category"])
-            rows.append({"run": "leave-one-set-out", "seed": f"set{k}", "method": "ceiling_mde",
-                         "iteration": (n_set if size is None else size) * len(rest), "held_out": str(sets[k]),
-                         "partial_good_n": int(np.sum(held["partial"] & held["good"])), **score(mde, held)})
-    return {"sets": [str(p) for p in sets], "overrides": list(overrides),
-            "counts": {"transitions": sum(d["n"] for d in parts), "pours": sum(int(d["pour"].sum()) for d in parts),
-                       "pours_good": sum(int((d["pour"] & d["good"]).sum()) for d in parts),
-                       "partial_first_pours": sum(int(d["partial"].sum()) for d in parts),
-                       "partial_good": sum(int((d["partial"] & d["good"]).sum()) for d in parts)},
-            "rows": rows}
+            rows.append(
+                {
+                    "run": "leave-one-set-out",
+                    "seed": f"set{k}",
+                    "method": "ceiling_mde",
+                    "iteration": (n_set if size is None else size) * len(rest),
+                    "held_out": str(sets[k]),
+                    "partial_good_n": int(np.sum(held["partial"] & held["good"])),
+                    **score(mde, held),
+                }
+            )
+    return {
+        "sets": [str(p) for p in sets],
+        "overrides": list(overrides),
+        "counts": {
+            "transitions": sum(d["n"] for d in parts),
+            "pours": sum(int(d["pour"].sum()) for d in parts),
+            "pours_good": sum(int((d["pour"] & d["good"]).sum()) for d in parts),
+            "partial_first_pours": sum(int(d["partial"].sum()) for d in parts),
+            "partial_good": sum(int((d["partial"] & d["good"]).sum()) for d in parts),
+        },
+        "rows": rows,
+    }
 
 
 KEYS = ("pour_good", "pour_bad", "move_good", "partial_good", "partial_good_std_median")
@@ -169,9 +211,11 @@ KEYS = ("pour_good", "pour_bad", "move_good", "partial_good", "partial_good_std_
 
 def format_table(r: dict[str, Any]) -> str:
     c = r["counts"]
-    lines = [f"labelled set: {c['transitions']} transitions, {c['pours']} pours ({c['pours_good']} good), "
-             f"{c['partial_first_pours']} partial first pours ({c['partial_good']} good)",
-             f"{'method':<16} {'it/n':>4} {'runs':>4} " + " ".join(f"{k:>23}" for k in KEYS)]
+    lines = [
+        f"labelled set: {c['transitions']} transitions, {c['pours']} pours ({c['pours_good']} good), "
+        f"{c['partial_first_pours']} partial first pours ({c['partial_good']} good)",
+        f"{'method':<16} {'it/n':>4} {'runs':>4} " + " ".join(f"{k:>23}" for k in KEYS),
+    ]
     groups: dict[tuple[str, int], list[dict]] = {}
     for row in r["rows"]:
         groups.setdefault((row["method"], row["iteration"]), []).append(row)
@@ -189,15 +233,33 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("runs", type=Path, nargs="*", help="run directories (seed*/METHOD/mde_iterNNN.pt below)")
     ap.add_argument("--sets", type=Path, nargs="+", required=True, help="saved ceiling sets (.npz) to score on")
     ap.add_argument("--out", type=Path, default=None, help="write the result as JSON here")
-    ap.add_argument("--override", dest="overrides", action="append", default=[],
-                    help="Hydra override of the config whose dynamics model labels the set (repeatable)")
-    ap.add_argument("--leave-one-set-out", action="store_true",
-                    help="instead of runs: fit the config's MDE on all --sets but one, score the one left out")
-    ap.add_argument("--trajectories", type=int, nargs="+", default=None,
-                    help="with --leave-one-set-out: fit on this many trajectories of each training set (one fit each)")
-    ap.add_argument("--refit", type=int, nargs="+", default=None,
-                    help="with runs: fit the config's MDE on each run's data after these iterations instead of "
-                         "scoring its saved MDEs")
+    ap.add_argument(
+        "--override",
+        dest="overrides",
+        action="append",
+        default=[],
+        help="Hydra override of the config whose dynamics model labels the set (repeatable)",
+    )
+    ap.add_argument(
+        "--leave-one-set-out",
+        action="store_true",
+        help="instead of runs: fit the config's MDE on all --sets but one, score the one left out",
+    )
+    ap.add_argument(
+        "--trajectories",
+        type=int,
+        nargs="+",
+        default=None,
+        help="with --leave-one-set-out: fit on this many trajectories of each training set (one fit each)",
+    )
+    ap.add_argument(
+        "--refit",
+        type=int,
+        nargs="+",
+        default=None,
+        help="with runs: fit the config's MDE on each run's data after these iterations instead of "
+        "scoring its saved MDEs",
+    )
     args = ap.parse_args(argv)
     if args.refit and (args.leave_one_set_out or not args.runs):
         ap.error("--refit goes with run directories, not --leave-one-set-out")

@@ -27,7 +27,7 @@ import numpy as np
 import safeio
 
 #: tolerances of the comparison (see the module docstring for why fractions are compared as means)
-POSE_TOL = 1e-4          # m / rad: poses come from the schedule, identical on both arches
+POSE_TOL = 1e-4  # m / rad: poses come from the schedule, identical on both arches
 MEAN_FRACTION_TOL = 0.03  # mean |difference| of v_ctrl and v_tgt over the batch
 CATEGORY_AGREEMENT_MIN = 0.85
 
@@ -55,9 +55,16 @@ def run_suite(arch: str, n: int, seed: int = 0) -> dict:
     res = ex.run("target", np.array(starts), actions, plant_jitter=jitter)
     wall = time.perf_counter() - t0
     ex.close()
-    return {"arch": arch, "backend": used, "n": len(actions), "wall_seconds": wall,
-            "final_states": [r.states[-1].tolist() for r in res], "categories": [r.category for r in res],
-            "executed": [len(r.steps) for r in res], "unstable": [r.unstable for r in res]}
+    return {
+        "arch": arch,
+        "backend": used,
+        "n": len(actions),
+        "wall_seconds": wall,
+        "final_states": [r.states[-1].tolist() for r in res],
+        "categories": [r.category for r in res],
+        "executed": [len(r.steps) for r in res],
+        "unstable": [r.unstable for r in res],
+    }
 
 
 def compare(a: dict, b: dict) -> dict:
@@ -66,34 +73,58 @@ def compare(a: dict, b: dict) -> dict:
     pose = np.abs(sa[:, :3] - sb[:, :3]).max(axis=1)
     frac = np.abs(sa[:, 3:] - sb[:, 3:])
     cats = np.array(a["categories"]) == np.array(b["categories"])
-    out = {"n": len(sa), "max_pose_difference": float(pose.max()),
-           "mean_fraction_difference": float(frac.mean()), "max_fraction_difference": float(frac.max()),
-           "fraction_difference_p90": float(np.quantile(frac, 0.9)),
-           "category_agreement": float(cats.mean()),
-           "executed_agreement": float(np.mean(np.array(a["executed"]) == np.array(b["executed"]))),
-           "unstable": {a["arch"]: int(sum(a["unstable"])), b["arch"]: int(sum(b["unstable"]))},
-           "wall_seconds": {a["arch"]: a["wall_seconds"], b["arch"]: b["wall_seconds"]},
-           "tolerances": {"pose": POSE_TOL, "mean_fraction": MEAN_FRACTION_TOL,
-                          "category_agreement_min": CATEGORY_AGREEMENT_MIN}}
-    out["passed"] = bool(out["max_pose_difference"] <= POSE_TOL and out["mean_fraction_difference"] <= MEAN_FRACTION_TOL
-                         and out["category_agreement"] >= CATEGORY_AGREEMENT_MIN
-                         and not any(out["unstable"].values()))
+    out = {
+        "n": len(sa),
+        "max_pose_difference": float(pose.max()),
+        "mean_fraction_difference": float(frac.mean()),
+        "max_fraction_difference": float(frac.max()),
+        "fraction_difference_p90": float(np.quantile(frac, 0.9)),
+        "category_agreement": float(cats.mean()),
+        "executed_agreement": float(np.mean(np.array(a["executed"]) == np.array(b["executed"]))),
+        "unstable": {a["arch"]: int(sum(a["unstable"])), b["arch"]: int(sum(b["unstable"]))},
+        "wall_seconds": {a["arch"]: a["wall_seconds"], b["arch"]: b["wall_seconds"]},
+        "tolerances": {
+            "pose": POSE_TOL,
+            "mean_fraction": MEAN_FRACTION_TOL,
+            "category_agreement_min": CATEGORY_AGREEMENT_MIN,
+        },
+    }
+    out["passed"] = bool(
+        out["max_pose_difference"] <= POSE_TOL
+        and out["mean_fraction_difference"] <= MEAN_FRACTION_TOL
+        and out["category_agreement"] >= CATEGORY_AGREEMENT_MIN
+        and not any(out["unstable"].values())
+    )
     return out
 
 
 def _run_in_subprocess(arch: str, n: int, seed: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, f"{arch}.json")
-        cmd = [sys.executable, "-m", "benchmarks.check_arch", "--run-one", arch, "--n", str(n), "--seed", str(seed),
-               "--out", path]
+        cmd = [
+            sys.executable,
+            "-m",
+            "benchmarks.check_arch",
+            "--run-one",
+            arch,
+            "--n",
+            str(n),
+            "--seed",
+            str(seed),
+            "--out",
+            path,
+        ]
         subprocess.run(cmd, check=True)
         with open(path) as f:
             return json.load(f)
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.check_arch", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks.check_arch",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("--arch", default="gpu", help="arch under test (cpu | gpu | auto)")
     ap.add_argument("--reference", default="cpu", help="arch it is compared with")
     ap.add_argument("--n", type=int, default=32, help="random trajectories besides the scripted pours")
@@ -110,8 +141,14 @@ def main(argv=None) -> None:
         cmp = compare(runs[args.reference], runs[args.arch])
         result = {"comparison": cmp, "runs": runs}
         print(f"{cmp['n']} target-world trajectories, {args.arch} vs {args.reference}:")
-        for k in ("max_pose_difference", "mean_fraction_difference", "fraction_difference_p90",
-                  "max_fraction_difference", "category_agreement", "executed_agreement"):
+        for k in (
+            "max_pose_difference",
+            "mean_fraction_difference",
+            "fraction_difference_p90",
+            "max_fraction_difference",
+            "category_agreement",
+            "executed_agreement",
+        ):
             print(f"  {k:26s} {cmp[k]:.4g}")
         print(f"  unstable                   {cmp['unstable']}")
         print("  wall seconds               " + ", ".join(f"{k} {v:.1f}" for k, v in cmp["wall_seconds"].items()))

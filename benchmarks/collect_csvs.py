@@ -9,10 +9,12 @@ times (seeds 0-5 in one job, 6-11 in another) land side by side. ``--rename OLD=
 name (the ``method`` column is rewritten too): for runs of a method made under another method's name, e.g. runs
 of active_balanced with ``acquisition=straddle``, the method ``configs/methods`` calls ``active_straddle``.
 
-    python benchmarks/collect_csvs.py results/quick/csv RUN1 RUN2/seed6/random_plan --rename active_balanced=active_straddle
+    python benchmarks/collect_csvs.py results/quick/csv RUN1 RUN2/seed6/random_plan \
+        --rename active_balanced=active_straddle
 
 A file already in DEST with other contents is an error (two sources for one seed and method), never overwritten.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -90,8 +92,13 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("dest", type=Path, help="the tree to fill (DEST/seedN/METHOD/*.csv)")
     parser.add_argument("sources", type=Path, nargs="+", help="run, seed or method directories")
-    parser.add_argument("--rename", action="append", default=[], metavar="OLD=NEW",
-                        help="file method OLD under NEW, for every source of this call (repeatable)")
+    parser.add_argument(
+        "--rename",
+        action="append",
+        default=[],
+        metavar="OLD=NEW",
+        help="file method OLD under NEW, for every source of this call (repeatable)",
+    )
     args = parser.parse_args(argv)
     rename = {}
     for item in args.rename:

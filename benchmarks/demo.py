@@ -25,8 +25,9 @@ SCRIPTS = {
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.demo", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks.demo", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--out", type=Path, default=Path("outputs/demo"))
     ap.add_argument("--world", default="target", choices=["source", "target"])
     ap.add_argument("--config", type=Path, default=None, help="world config YAML (default configs/world/default.yaml)")
@@ -40,12 +41,26 @@ def main(argv: list[str] | None = None) -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     summary = {}
     for b, (name, r) in enumerate(zip(names, results)):
-        path = save_gif(r.frames, ex.solver(len(names)).specs[b], cfg.sim["domain"], ex.solver(len(names)).cfg.wall,
-                        args.out / f"{args.world}_{name}.gif", fps=args.fps)
-        summary[name] = {"gif": str(path), "category": r.category, "stuck": r.stuck, "stuck_on": r.stuck_on,
-                         "final_state": np.round(r.states[-1], 4).tolist(), "final_spill": round(r.final_spill, 4)}
-        print(f"{name:13s} {r.category:18s} v_ctrl={r.states[-1, 3]:.2f} v_tgt={r.states[-1, 4]:.2f} "
-              f"spill={r.final_spill:.2f} stuck={r.stuck_on or '-'}  -> {path}")
+        path = save_gif(
+            r.frames,
+            ex.solver(len(names)).specs[b],
+            cfg.sim["domain"],
+            ex.solver(len(names)).cfg.wall,
+            args.out / f"{args.world}_{name}.gif",
+            fps=args.fps,
+        )
+        summary[name] = {
+            "gif": str(path),
+            "category": r.category,
+            "stuck": r.stuck,
+            "stuck_on": r.stuck_on,
+            "final_state": np.round(r.states[-1], 4).tolist(),
+            "final_spill": round(r.final_spill, 4),
+        }
+        print(
+            f"{name:13s} {r.category:18s} v_ctrl={r.states[-1, 3]:.2f} v_tgt={r.states[-1, 4]:.2f} "
+            f"spill={r.final_spill:.2f} stuck={r.stuck_on or '-'}  -> {path}"
+        )
     (args.out / f"{args.world}_summary.json").write_text(json.dumps(summary, indent=1))
 
 

@@ -54,16 +54,27 @@ def inputs(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Plausible states and actions (half moves, half pours) in the world's ranges."""
     rng = np.random.default_rng(seed)
     vc = rng.uniform(0, 1, n)
-    s = np.column_stack([rng.uniform(0.1, 0.52, n), rng.uniform(0.06, 0.36, n), np.zeros(n), vc,
-                         rng.uniform(0, 1, n) * (1 - vc)])
+    s = np.column_stack(
+        [rng.uniform(0.1, 0.52, n), rng.uniform(0.06, 0.36, n), np.zeros(n), vc, rng.uniform(0, 1, n) * (1 - vc)]
+    )
     pour = np.arange(n) % 2 == 1
-    a = np.column_stack([pour.astype(float), np.where(pour, rng.uniform(0, 2.2, n), rng.uniform(0.1, 0.52, n)),
-                         np.where(pour, rng.uniform(0, 1, n), rng.uniform(0.06, 0.36, n))])
+    a = np.column_stack(
+        [
+            pour.astype(float),
+            np.where(pour, rng.uniform(0, 2.2, n), rng.uniform(0.1, 0.52, n)),
+            np.where(pour, rng.uniform(0, 1, n), rng.uniform(0.06, 0.36, n)),
+        ]
+    )
     return s, a
 
 
-def bench(model: LearnedDynamics, threads: list[int], batches: tuple[int, ...] = (1, 1024),
-          min_seconds: float = 0.2, repeats: int = 5) -> list[dict]:
+def bench(
+    model: LearnedDynamics,
+    threads: list[int],
+    batches: tuple[int, ...] = (1, 1024),
+    min_seconds: float = 0.2,
+    repeats: int = 5,
+) -> list[dict]:
     rows = []
     prev = torch.get_num_threads()
     try:
@@ -86,16 +97,24 @@ def bench(model: LearnedDynamics, threads: list[int], batches: tuple[int, ...] =
                     if "numpy" in name and th != threads[0]:
                         continue  # numpy does not use torch's threads
                     sec = _time(fn, min_seconds, repeats)
-                    rows.append({"path": name, "batch": n, "torch_threads": th if "torch" in name else None,
-                                 "us_per_call": sec * 1e6, "transitions_per_s": n / sec})
+                    rows.append(
+                        {
+                            "path": name,
+                            "batch": n,
+                            "torch_threads": th if "torch" in name else None,
+                            "us_per_call": sec * 1e6,
+                            "transitions_per_s": n / sec,
+                        }
+                    )
     finally:
         torch.set_num_threads(prev)
     return rows
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.dynamics", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks.dynamics", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--out", default=".cache/dynamics/bench.json", help="JSON output file")
     ap.add_argument("--untrained", action="store_true", help="time a freshly initialised network")
     ap.add_argument("--config-name", default="default")
@@ -121,15 +140,24 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     threads = sorted({1, default_threads})
     rows = bench(model, threads, min_seconds=args.min_seconds, repeats=args.repeats)
     n_params = sum(p.numel() for p in model.parameters())
-    print(f"dynamics model: {source}; hidden {list(model.cfg.hidden)} per skill, {n_params} parameters; "
-          f"CPU {platform.processor() or platform.machine()} x {os.cpu_count()} cores, torch {torch.__version__}")
+    print(
+        f"dynamics model: {source}; hidden {list(model.cfg.hidden)} per skill, {n_params} parameters; "
+        f"CPU {platform.processor() or platform.machine()} x {os.cpu_count()} cores, torch {torch.__version__}"
+    )
     print(f"{'path':28s} {'batch':>6s} {'threads':>8s} {'us/call':>12s} {'transitions/s':>15s}")
     for r in rows:
         th = "-" if r["torch_threads"] is None else str(r["torch_threads"])
         print(f"{r['path']:28s} {r['batch']:6d} {th:>8s} {r['us_per_call']:12.1f} {r['transitions_per_s']:15.0f}")
-    result = {"model": source, "hidden": list(model.cfg.hidden), "parameters": n_params, "rows": rows,
-              "cpu_count": os.cpu_count(), "torch": torch.__version__, "machine": platform.machine(),
-              "load_average": os.getloadavg()}
+    result = {
+        "model": source,
+        "hidden": list(model.cfg.hidden),
+        "parameters": n_params,
+        "rows": rows,
+        "cpu_count": os.cpu_count(),
+        "torch": torch.__version__,
+        "machine": platform.machine(),
+        "load_average": os.getloadavg(),
+    }
     out = Path(args.out)
     safeio.write_json(out, result, indent=1)
     print(f"wrote {out}")

@@ -49,11 +49,18 @@ def scores(pred: np.ndarray, ds: Any) -> dict[str, float]:
     d = state_distance(pred, true)
     e = pred[:, 4] - true[:, 4]
     mean = lambda v, m: float(v[m].mean()) if m.any() else float("nan")  # noqa: E731
-    return {"pour_mean_d": mean(d, pour), "pour_mae_v_tgt": mean(np.abs(e), pour),
-            "moved_mae_v_tgt": mean(np.abs(e), moved), "moved_bias_v_tgt": mean(e, moved),
-            "clean_mae_v_tgt": mean(np.abs(e), clean), "clean_bias_v_tgt": mean(e, clean),
-            "move_mean_d": mean(d, ~pour), "n_pour": int(pour.sum()), "n_moved": int(moved.sum()),
-            "n_clean": int(clean.sum())}
+    return {
+        "pour_mean_d": mean(d, pour),
+        "pour_mae_v_tgt": mean(np.abs(e), pour),
+        "moved_mae_v_tgt": mean(np.abs(e), moved),
+        "moved_bias_v_tgt": mean(e, moved),
+        "clean_mae_v_tgt": mean(np.abs(e), clean),
+        "clean_bias_v_tgt": mean(e, clean),
+        "move_mean_d": mean(d, ~pour),
+        "n_pour": int(pour.sum()),
+        "n_moved": int(moved.sum()),
+        "n_clean": int(clean.sum()),
+    }
 
 
 def _unseen(held: Any, train: Any) -> np.ndarray:
@@ -63,8 +70,9 @@ def _unseen(held: Any, train: Any) -> np.ndarray:
     return np.array([r.tobytes() not in seen for r in np.c_[held.s, held.a].astype(np.float32)], dtype=bool)
 
 
-def run(variants: dict[str, list[str]], seeds: Sequence[int], heldout_batches: int,
-        heldout_data: Path | None = None) -> dict[str, Any]:
+def run(
+    variants: dict[str, list[str]], seeds: Sequence[int], heldout_batches: int, heldout_data: Path | None = None
+) -> dict[str, Any]:
     from dynamics import load_or_generate_dataset, load_or_train
     from dynamics.data import Transitions
     from dynamics.evaluate import compose_config
@@ -84,38 +92,60 @@ def run(variants: dict[str, list[str]], seeds: Sequence[int], heldout_batches: i
             data, n_train = cfg.data, cfg.data.n_batches
             if heldout_batches <= n_train:
                 raise ValueError(f"--heldout-batches {heldout_batches}: allowed > data.n_batches = {n_train}")
-            big = load_or_generate_dataset(dataclasses.replace(cfg, data=dataclasses.replace(
-                cfg.data, n_batches=heldout_batches)))
+            big = load_or_generate_dataset(
+                dataclasses.replace(cfg, data=dataclasses.replace(cfg.data, n_batches=heldout_batches))
+            )
             held = big.subset(np.flatnonzero(big.traj >= n_train * cfg.data.batch_size))
             out["heldout"] = {"batches": [n_train, heldout_batches], "transitions": len(held)}
         elif heldout_data is None and cfg.data != data:
-            raise ValueError(f"variant {name}: its data.* differ from the first variant's; all variants must share "
-                             "the training data to be scored on the same held-out batches")
+            raise ValueError(
+                f"variant {name}: its data.* differ from the first variant's; all variants must share "
+                "the training data to be scored on the same held-out batches"
+            )
         rows, preds = [], []
         for s in seeds:
-            model = load_or_train(dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, seed=int(s))),
-                                  progress=False)
+            model = load_or_train(
+                dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, seed=int(s))), progress=False
+            )
             pred = model.predict_np(held.s, held.a)
             preds.append(pred)
             tr = model.info["training"]
-            rows.append({"seed": int(s), **scores(pred, held), "epochs_run": tr["epochs_run"],
-                         "best_epoch": tr["best_epoch"], "training_seconds": tr["wall_seconds"]})
-        out["variants"][name] = {"overrides": overrides, "per_seed": rows,
-                                 "mean_of_seeds": scores(np.mean(preds, axis=0), held)}
+            rows.append(
+                {
+                    "seed": int(s),
+                    **scores(pred, held),
+                    "epochs_run": tr["epochs_run"],
+                    "best_epoch": tr["best_epoch"],
+                    "training_seconds": tr["wall_seconds"],
+                }
+            )
+        out["variants"][name] = {
+            "overrides": overrides,
+            "per_seed": rows,
+            "mean_of_seeds": scores(np.mean(preds, axis=0), held),
+        }
     return out
 
 
 def format_table(r: dict[str, Any]) -> str:
     cols = ("pour_mean_d", "moved_mae_v_tgt", "moved_bias_v_tgt", "clean_mae_v_tgt", "clean_bias_v_tgt")
     h = r["heldout"]
-    what = (f"{h['file']} ({h['unseen_transitions']} transitions no variant trained on)" if "file" in h else
-            f"source batches {h['batches'][0]}-{h['batches'][1] - 1} ({h['transitions']} transitions)")
-    lines = [f"held out: {what}",
-             f"{'variant':<14}{'model':<14}" + "".join(f"{c:>18}" for c in cols) + f"{'epochs':>8}{'train s':>9}"]
+    what = (
+        f"{h['file']} ({h['unseen_transitions']} transitions no variant trained on)"
+        if "file" in h
+        else f"source batches {h['batches'][0]}-{h['batches'][1] - 1} ({h['transitions']} transitions)"
+    )
+    lines = [
+        f"held out: {what}",
+        f"{'variant':<14}{'model':<14}" + "".join(f"{c:>18}" for c in cols) + f"{'epochs':>8}{'train s':>9}",
+    ]
     for name, v in r["variants"].items():
         for row in v["per_seed"]:
-            lines.append(f"{name:<14}{'seed ' + str(row['seed']):<14}" + "".join(f"{row[c]:>18.4f}" for c in cols)
-                         + f"{row['epochs_run']:>8d}{row['training_seconds']:>9.0f}")
+            lines.append(
+                f"{name:<14}{'seed ' + str(row['seed']):<14}"
+                + "".join(f"{row[c]:>18.4f}" for c in cols)
+                + f"{row['epochs_run']:>8d}{row['training_seconds']:>9.0f}"
+            )
         m = v["mean_of_seeds"]
         lines.append(f"{name:<14}{'mean of seeds':<14}" + "".join(f"{m[c]:>18.4f}" for c in cols))
     return "\n".join(lines)
@@ -123,13 +153,27 @@ def format_table(r: dict[str, Any]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.dynamics_heldout", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--heldout-batches", type=int, default=96,
-                    help="size of the larger dataset whose batches past data.n_batches are the held-out set")
-    ap.add_argument("--heldout-data", type=Path, default=None, metavar="FILE",
-                    help="score on this cached dataset (dataset.pt of another data config) instead")
+    ap.add_argument(
+        "--heldout-batches",
+        type=int,
+        default=96,
+        help="size of the larger dataset whose batches past data.n_batches are the held-out set",
+    )
+    ap.add_argument(
+        "--heldout-data",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="score on this cached dataset (dataset.pt of another data config) instead",
+    )
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds per variant")
-    ap.add_argument("--variant", action="append", default=[], metavar="NAME=OVERRIDES",
-                    help="a named variant: comma-separated overrides of configs/dynamics (repeatable)")
+    ap.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        metavar="NAME=OVERRIDES",
+        help="a named variant: comma-separated overrides of configs/dynamics (repeatable)",
+    )
     ap.add_argument("--out", type=Path, default=None, help="write the result as JSON here")
     args = ap.parse_args(argv)
     variants: dict[str, list[str]] = {}

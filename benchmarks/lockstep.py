@@ -48,8 +48,12 @@ def main(argv: list[str] | None = None) -> dict:
 
     base = compose_config(list(args.overrides) + ["progress=false", "wandb.mode=disabled"])
     dynamics.load_or_train(base["dynamics"], world_cfg=base["world"], progress=False)  # cached before timing
-    result: dict = {"overrides": list(args.overrides), "machine": platform.machine(), "cpus": os.cpu_count(),
-                    "runners": {}}
+    result: dict = {
+        "overrides": list(args.overrides),
+        "machine": platform.machine(),
+        "cpus": os.cpu_count(),
+        "runners": {},
+    }
     with tempfile.TemporaryDirectory(prefix="bench-lockstep-") as tmp:
         rows = {}
         for runner in ("sequential", "lockstep"):
@@ -71,8 +75,10 @@ def main(argv: list[str] | None = None) -> dict:
         result["identical_results"] = _comparable(rows["sequential"]) == _comparable(rows["lockstep"])
     seq, lock = result["runners"]["sequential"], result["runners"]["lockstep"]
     result["speedup"] = seq["wall_s"] / lock["wall_s"]
-    lines = [f"runs: {len(rows['sequential'])} (method, seed) pairs; overrides {args.overrides}",
-             f"{'runner':<11} {'wall s':>8} " + " ".join(f"{p.split('_')[0] + ' s':>8}" for p in PHASES)]
+    lines = [
+        f"runs: {len(rows['sequential'])} (method, seed) pairs; overrides {args.overrides}",
+        f"{'runner':<11} {'wall s':>8} " + " ".join(f"{p.split('_')[0] + ' s':>8}" for p in PHASES),
+    ]
     for name, r in result["runners"].items():
         lines.append(f"{name:<11} {r['wall_s']:8.1f} " + " ".join(f"{r[p]:8.1f}" for p in PHASES))
     lines.append(f"lockstep speedup {result['speedup']:.2f}x; identical results: {result['identical_results']}")

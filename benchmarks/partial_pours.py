@@ -1,4 +1,5 @@
-"""Where the labels of the partial first pours come from: ``python -m benchmarks.partial_pours --sets S/ceiling_train_seed0.npz ...``.
+"""Where the labels of the partial first pours come from:
+``python -m benchmarks.partial_pours --sets S/ceiling_train_seed0.npz ...``.
 
 Why: the MDE refuses the pours that every mid-range goal needs (a full cup that pours part of its water into
 the target cup), because their labels in the target world scatter (BENCHMARKS.md, "Admission"). This takes
@@ -63,11 +64,23 @@ def find_pours(world: Any, paths: Sequence[Path], seeds: Sequence[int]) -> list[
             i = int(traj[j])
             first = int(np.flatnonzero(traj == i)[0])
             if not np.allclose(s[first, :3], probs[i].start[:3], atol=1e-6):
-                raise ValueError(f"--sets {path}: trajectory {i} starts at {s[first, :3]}, not at the start of "
-                                 f"ladder seed {seed}'s problem {i} ({probs[i].start[:3]}); pass the right --set-seeds")
-            pours.append({"set": str(path), "trajectory": i, "step": j - first, "slot": i % CEILING_BATCH,
-                          "start": probs[i].start[:3], "plant_jitter": probs[i].plant_jitter,
-                          "prefix": a[first:j + 1], "pre": s[j], "recorded": s2[j]})
+                raise ValueError(
+                    f"--sets {path}: trajectory {i} starts at {s[first, :3]}, not at the start of "
+                    f"ladder seed {seed}'s problem {i} ({probs[i].start[:3]}); pass the right --set-seeds"
+                )
+            pours.append(
+                {
+                    "set": str(path),
+                    "trajectory": i,
+                    "step": j - first,
+                    "slot": i % CEILING_BATCH,
+                    "start": probs[i].start[:3],
+                    "plant_jitter": probs[i].plant_jitter,
+                    "prefix": a[first : j + 1],
+                    "pre": s[j],
+                    "recorded": s2[j],
+                }
+            )
     return pours
 
 
@@ -82,16 +95,23 @@ def execute(executor: Any, world_name: str, jobs: list[tuple], what: str) -> lis
     run = [j for j, k in zip(jobs, ok) if k]
     res = []
     for c in range(0, len(run), CEILING_BATCH):
-        ch = run[c:c + CEILING_BATCH]
-        res += executor.run(world_name, np.array([j[0] for j in ch]), [j[1] for j in ch],
-                            plant_jitter=np.array([j[2] for j in ch]), slots=[j[3] for j in ch])
+        ch = run[c : c + CEILING_BATCH]
+        res += executor.run(
+            world_name,
+            np.array([j[0] for j in ch]),
+            [j[1] for j in ch],
+            plant_jitter=np.array([j[2] for j in ch]),
+            slots=[j[3] for j in ch],
+        )
     it = iter(res)
     out = []
     for j, k in zip(jobs, ok):
         r = next(it) if k else None
         out.append(r.states[-1] if r is not None and len(r.states) == len(j[1]) + 1 else None)
-    print(f"{what}: {len(jobs)} executions ({len(jobs) - sum(ok)} starts overlap), {time.perf_counter() - t0:.0f} s",
-          flush=True)
+    print(
+        f"{what}: {len(jobs)} executions ({len(jobs) - sum(ok)} starts overlap), {time.perf_counter() - t0:.0f} s",
+        flush=True,
+    )
     return out
 
 
@@ -106,8 +126,14 @@ def from_rest(pre: np.ndarray, pour: np.ndarray, move_range: dict) -> np.ndarray
     return np.array([move(x, y), np.asarray(pour, float)])
 
 
-def take_apart(sets: Sequence[Path], set_seeds: Sequence[int] | None, overrides: Sequence[str], slots: int,
-               jitters: int, mde_files: Sequence[Path]) -> dict[str, Any]:
+def take_apart(
+    sets: Sequence[Path],
+    set_seeds: Sequence[int] | None,
+    overrides: Sequence[str],
+    slots: int,
+    jitters: int,
+    mde_files: Sequence[Path],
+) -> dict[str, Any]:
     """Execute every partial first pour of ``sets`` again (history, rest, source world, plant poses; module
     docstring) and return the per-pour outcomes and labels with their summary. Arguments are checked, and
     the MDE files looked for, before anything is simulated."""
@@ -141,8 +167,10 @@ def take_apart(sets: Sequence[Path], set_seeds: Sequence[int] | None, overrides:
         raise ValueError(f"--sets {[str(p) for p in sets]}: no partial first pours")
     print(f"{len(pours)} partial first pours in {len(sets)} sets", flush=True)
     with torch.no_grad():
-        pred = dyn.predict(torch.as_tensor(np.stack([p["pre"] for p in pours]), dtype=torch.float32),
-                           torch.as_tensor(np.stack([p["prefix"][-1] for p in pours]), dtype=torch.float32))
+        pred = dyn.predict(
+            torch.as_tensor(np.stack([p["pre"] for p in pours]), dtype=torch.float32),
+            torch.as_tensor(np.stack([p["prefix"][-1] for p in pours]), dtype=torch.float32),
+        )
     pred = pred.double().numpy()
 
     ex = PouringExecutor(world)
@@ -154,18 +182,26 @@ def take_apart(sets: Sequence[Path], set_seeds: Sequence[int] | None, overrides:
         return from_rest(p["pre"], p["prefix"][-1], world.skills["move"])
 
     def slots_of(p: dict) -> list[int]:
-        return [p["slot"], *EXTRA_SLOTS[:slots - 1]]
+        return [p["slot"], *EXTRA_SLOTS[: slots - 1]]
 
     runs = {
-        "history": ("target", [(p["start"], p["prefix"], p["plant_jitter"], sl) for p in pours for sl in slots_of(p)], slots),
-        "rest": ("target", [(p["pre"][:3], rest(p), p["plant_jitter"], sl) for p in pours for sl in slots_of(p)], slots),
+        "history": (
+            "target",
+            [(p["start"], p["prefix"], p["plant_jitter"], sl) for p in pours for sl in slots_of(p)],
+            slots,
+        ),
+        "rest": (
+            "target",
+            [(p["pre"][:3], rest(p), p["plant_jitter"], sl) for p in pours for sl in slots_of(p)],
+            slots,
+        ),
         "source": ("source", [(p["pre"][:3], rest(p), zero, sl) for p in pours for sl in slots_of(p)], slots),
         "jitter": ("target", [(p["pre"][:3], rest(p), j, p["slot"]) for p in pours for j in jit], len(jit)),
     }
     outcomes = {}
     for name, (world_name, jobs, per) in runs.items():
         flat = execute(ex, world_name, jobs, name)
-        outcomes[name] = [flat[k * per:(k + 1) * per] for k in range(len(pours))]
+        outcomes[name] = [flat[k * per : (k + 1) * per] for k in range(len(pours))]
     ex.close()
 
     def label(p: np.ndarray, q: np.ndarray | None) -> float:
@@ -173,11 +209,21 @@ def take_apart(sets: Sequence[Path], set_seeds: Sequence[int] | None, overrides:
 
     rows = []
     for k, p in enumerate(pours):
-        row = {"set": p["set"], "trajectory": p["trajectory"], "step": p["step"], "slot": p["slot"],
-               "x": float(p["pre"][0]), "y": float(p["pre"][1]), "theta": float(p["prefix"][-1][1]),
-               "hold": float(p["prefix"][-1][2]), "action": p["prefix"][-1].tolist(), "pre": p["pre"].tolist(),
-               "recorded": p["recorded"].tolist(), "model": pred[k].tolist(),
-               "label_recorded": label(pred[k], p["recorded"])}
+        row = {
+            "set": p["set"],
+            "trajectory": p["trajectory"],
+            "step": p["step"],
+            "slot": p["slot"],
+            "x": float(p["pre"][0]),
+            "y": float(p["pre"][1]),
+            "theta": float(p["prefix"][-1][1]),
+            "hold": float(p["prefix"][-1][2]),
+            "action": p["prefix"][-1].tolist(),
+            "pre": p["pre"].tolist(),
+            "recorded": p["recorded"].tolist(),
+            "model": pred[k].tolist(),
+            "label_recorded": label(pred[k], p["recorded"]),
+        }
         for name in runs:
             finals = outcomes[name][k]
             row[name] = [None if f is None else f.tolist() for f in finals]
@@ -189,13 +235,22 @@ def take_apart(sets: Sequence[Path], set_seeds: Sequence[int] | None, overrides:
     summary = summarise(rows, exp.d_max)
     if mde_files:
         summary["mde"] = mde_at_safe_pours(rows, mde_files, exp)
-    return {"sets": [str(p) for p in sets], "set_seeds": seeds, "overrides": list(overrides), "slots": slots,
-            "plant_jitters": [j.tolist() for j in jit], "d_max": exp.d_max, "summary": summary, "pours": rows,
-            "seconds": time.perf_counter() - t_all}
+    return {
+        "sets": [str(p) for p in sets],
+        "set_seeds": seeds,
+        "overrides": list(overrides),
+        "slots": slots,
+        "plant_jitters": [j.tolist() for j in jit],
+        "d_max": exp.d_max,
+        "summary": summary,
+        "pours": rows,
+        "seconds": time.perf_counter() - t_all,
+    }
 
 
 def _fraction_stats(rows: list[dict], run: str, i: int) -> dict[str, np.ndarray]:
     """Per pour: mean and std over the run's executions of state component i (NaN where none ran)."""
+
     def one(r: dict) -> tuple[float, float]:
         v = np.array([f[i] for f in r[run] if f is not None])
         return (float(v.mean()), float(v.std())) if len(v) else (np.nan, np.nan)
@@ -208,33 +263,52 @@ def summarise(rows: list[dict], d_max: float) -> dict[str, Any]:
     """Medians over the pours: labels, the model's error, history against rest, slot scatter, jitter verdicts."""
     med = lambda v: float(np.nanmedian(v))  # noqa: E731
     model = np.array([r["model"] for r in rows])
-    out: dict[str, Any] = {"pours": len(rows), "replay_max_abs_diff": float(np.nanmax(
-        [np.abs(np.array(r["history"][0]) - r["recorded"]).max() if r["history"][0] is not None else np.nan
-         for r in rows]))}
+    out: dict[str, Any] = {
+        "pours": len(rows),
+        "replay_max_abs_diff": float(
+            np.nanmax(
+                [
+                    np.abs(np.array(r["history"][0]) - r["recorded"]).max() if r["history"][0] is not None else np.nan
+                    for r in rows
+                ]
+            )
+        ),
+    }
     tgt = {run: _fraction_stats(rows, run, 4) for run in ("history", "rest", "source")}
     src = {run: _fraction_stats(rows, run, 3) for run in ("history", "rest", "source")}
     for run in ("history", "rest", "source"):
         lab = np.array([np.nanmean(r[f"labels_{run}"]) for r in rows])
-        out[run] = {"label_median": med(lab), "label_share_good": float(np.mean(lab < d_max)),
-                    "model_error_target_cup": med(np.abs(model[:, 4] - tgt[run]["mean"])),
-                    "model_error_target_cup_signed": med(model[:, 4] - tgt[run]["mean"]),
-                    "model_error_poured_cup": med(np.abs(model[:, 3] - src[run]["mean"])),
-                    "slot_std_target_cup": med(tgt[run]["std"])}
+        out[run] = {
+            "label_median": med(lab),
+            "label_share_good": float(np.mean(lab < d_max)),
+            "model_error_target_cup": med(np.abs(model[:, 4] - tgt[run]["mean"])),
+            "model_error_target_cup_signed": med(model[:, 4] - tgt[run]["mean"]),
+            "model_error_poured_cup": med(np.abs(model[:, 3] - src[run]["mean"])),
+            "slot_std_target_cup": med(tgt[run]["std"]),
+        }
     out["label_recorded_median"] = med([r["label_recorded"] for r in rows])
     d = tgt["history"]["mean"] - tgt["rest"]["mean"]
     e_h, e_r = model[:, 4] - tgt["history"]["mean"], model[:, 4] - tgt["rest"]["mean"]
     ok = np.isfinite(e_h) & np.isfinite(e_r)
-    out["history_minus_rest_target_cup"] = {"median_abs": med(np.abs(d)), "median": med(d),
-                                            "corr_model_errors": float(np.corrcoef(e_h[ok], e_r[ok])[0, 1])}
+    out["history_minus_rest_target_cup"] = {
+        "median_abs": med(np.abs(d)),
+        "median": med(d),
+        "corr_model_errors": float(np.corrcoef(e_h[ok], e_r[ok])[0, 1]),
+    }
     same = np.abs(tgt["rest"]["mean"] - tgt["source"]["mean"]) < 1e-9
     out["target_rest_equals_source"] = int(np.sum(same))
     share = np.array([np.nan if r["jitter_share_good"] is None else r["jitter_share_good"] for r in rows])
     good_labels = [v for r in rows for v in r["labels_jitter"][1:] if np.isfinite(v) and v < d_max]
-    out["jitter"] = {"always_good": int(np.sum(share == 1)), "always_bad": int(np.sum(share == 0)),
-                     "mixed": int(np.sum((share > 0) & (share < 1))), "share_good_mean": float(np.nanmean(share)),
-                     "good_without_jitter": float(np.mean([r["labels_jitter"][0] < d_max for r in rows
-                                                           if np.isfinite(r["labels_jitter"][0])])),
-                     "label_of_good_outcomes_median": med(good_labels) if good_labels else None}
+    out["jitter"] = {
+        "always_good": int(np.sum(share == 1)),
+        "always_bad": int(np.sum(share == 0)),
+        "mixed": int(np.sum((share > 0) & (share < 1))),
+        "share_good_mean": float(np.nanmean(share)),
+        "good_without_jitter": float(
+            np.mean([r["labels_jitter"][0] < d_max for r in rows if np.isfinite(r["labels_jitter"][0])])
+        ),
+        "label_of_good_outcomes_median": med(good_labels) if good_labels else None,
+    }
     return out
 
 
@@ -253,33 +327,50 @@ def mde_at_safe_pours(rows: list[dict], files: Sequence[Path], exp: Any) -> list
         m = mde_pkg.load(f)
         mu, sd = (v.double().numpy() for v in m.predict(X))
         noise = m.noise_std(X).double().numpy()
-        out.append({"file": str(f), "n": len(safe), "mu_median": float(np.median(mu)), "std_median": float(np.median(sd)),
-                    "noise_std_median": float(np.median(noise)),
-                    "admitted": float(np.mean(mu + exp.beta_test * sd < exp.d_max))})
+        out.append(
+            {
+                "file": str(f),
+                "n": len(safe),
+                "mu_median": float(np.median(mu)),
+                "std_median": float(np.median(sd)),
+                "noise_std_median": float(np.median(noise)),
+                "admitted": float(np.mean(mu + exp.beta_test * sd < exp.d_max)),
+            }
+        )
     return out
 
 
 def format_table(r: dict[str, Any]) -> str:
     s = r["summary"]
-    lines = [f"{s['pours']} partial first pours; replay of the recorded history: max |difference| "
-             f"{s['replay_max_abs_diff']:.2g}; {s['target_rest_equals_source']} from rest end exactly as in the source world",
-             f"{'executed':<10} {'label med':>9} {'< d_max':>8} {'|model-tgt|':>11} {'signed':>7} {'|model-src|':>11} "
-             f"{'slot std':>8}",
-             f"{'recorded':<10} {s['label_recorded_median']:>9.4f}"]
+    lines = [
+        f"{s['pours']} partial first pours; replay of the recorded history: max |difference| "
+        f"{s['replay_max_abs_diff']:.2g}; {s['target_rest_equals_source']} from rest end exactly as in the source world",  # noqa: E501 (a table row's format reads best on one line)
+        f"{'executed':<10} {'label med':>9} {'< d_max':>8} {'|model-tgt|':>11} {'signed':>7} {'|model-src|':>11} "
+        f"{'slot std':>8}",
+        f"{'recorded':<10} {s['label_recorded_median']:>9.4f}",
+    ]
     for run in ("history", "rest", "source"):
         v = s[run]
-        lines.append(f"{run:<10} {v['label_median']:>9.4f} {v['label_share_good']:>8.2f} {v['model_error_target_cup']:>11.4f} "
-                     f"{v['model_error_target_cup_signed']:>+7.4f} {v['model_error_poured_cup']:>11.4f} {v['slot_std_target_cup']:>8.4f}")
+        lines.append(
+            f"{run:<10} {v['label_median']:>9.4f} {v['label_share_good']:>8.2f} {v['model_error_target_cup']:>11.4f} "
+            f"{v['model_error_target_cup_signed']:>+7.4f} {v['model_error_poured_cup']:>11.4f} {v['slot_std_target_cup']:>8.4f}"  # noqa: E501 (a table row's format reads best on one line)
+        )
     h = s["history_minus_rest_target_cup"]
-    lines.append(f"history - rest (target cup): median |.| {h['median_abs']:.4f}, median {h['median']:+.4f}; "
-                 f"corr of the model's errors {h['corr_model_errors']:.2f}")
+    lines.append(
+        f"history - rest (target cup): median |.| {h['median_abs']:.4f}, median {h['median']:+.4f}; "
+        f"corr of the model's errors {h['corr_model_errors']:.2f}"
+    )
     j = s["jitter"]
-    lines.append(f"under {len(r['plant_jitters']) - 1} plant jitters: always good {j['always_good']}, always bad "
-                 f"{j['always_bad']}, mixed {j['mixed']}; share good {j['share_good_mean']:.2f} (no jitter "
-                 f"{j['good_without_jitter']:.2f}); median label of the good outcomes {j['label_of_good_outcomes_median']:.4f}")
+    lines.append(
+        f"under {len(r['plant_jitters']) - 1} plant jitters: always good {j['always_good']}, always bad "
+        f"{j['always_bad']}, mixed {j['mixed']}; share good {j['share_good_mean']:.2f} (no jitter "
+        f"{j['good_without_jitter']:.2f}); median label of the good outcomes {j['label_of_good_outcomes_median']:.4f}"
+    )
     for m in s.get("mde", []):
-        lines.append(f"MDE {m['file']}: at the {m['n']} always-good pours mu {m['mu_median']:.3f} std {m['std_median']:.3f} "
-                     f"(noise {m['noise_std_median']:.3f}), admitted {m['admitted']:.2f}")
+        lines.append(
+            f"MDE {m['file']}: at the {m['n']} always-good pours mu {m['mu_median']:.3f} std {m['std_median']:.3f} "
+            f"(noise {m['noise_std_median']:.3f}), admitted {m['admitted']:.2f}"
+        )
     return "\n".join(lines)
 
 
@@ -294,19 +385,40 @@ def plot(r: dict[str, Any], path: Path) -> Path:
     rows, d_max = r["pours"], r["d_max"]
     fig, (a0, a1) = plt.subplots(1, 2, figsize=(11, 4.2))
     share = np.array([np.nan if p["jitter_share_good"] is None else p["jitter_share_good"] for p in rows])
-    sc = a0.scatter([p["x"] for p in rows], [p["y"] for p in rows], c=share, cmap="RdYlGn", vmin=0, vmax=1,
-                    s=[40 + 200 * (p["theta"] - 1.0) for p in rows], edgecolors="k", linewidths=0.4)
+    sc = a0.scatter(
+        [p["x"] for p in rows],
+        [p["y"] for p in rows],
+        c=share,
+        cmap="RdYlGn",
+        vmin=0,
+        vmax=1,
+        s=[40 + 200 * (p["theta"] - 1.0) for p in rows],
+        edgecolors="k",
+        linewidths=0.4,
+    )
     fig.colorbar(sc, ax=a0, label="share of plant poses with label < d_max")
-    a0.set(xlabel="cup x before the pour (m)", ylabel="cup y (m)",
-           title=f"{len(rows)} partial first pours (marker size: tilt)")
+    a0.set(
+        xlabel="cup x before the pour (m)",
+        ylabel="cup y (m)",
+        title=f"{len(rows)} partial first pours (marker size: tilt)",
+    )
     for p in rows:
         lab = np.array(p["labels_jitter"][1:], float)
         x = np.full(len(lab), p["x"]) + np.linspace(-0.003, 0.003, len(lab))
-        a1.scatter(x, np.clip(lab, 1e-3, None), s=6, color="tab:red" if 0 < (p["jitter_share_good"] or 0) < 1 else "tab:blue",
-                   alpha=0.6)
+        a1.scatter(
+            x,
+            np.clip(lab, 1e-3, None),
+            s=6,
+            color="tab:red" if 0 < (p["jitter_share_good"] or 0) < 1 else "tab:blue",
+            alpha=0.6,
+        )
     a1.axhline(d_max, color="k", ls="--", lw=1, label=f"d_max = {d_max}")
-    a1.set(yscale="log", xlabel="cup x before the pour (m)", ylabel="label d(model, executed)",
-           title="labels under 8 plant poses (red: the pose decides)")
+    a1.set(
+        yscale="log",
+        xlabel="cup x before the pour (m)",
+        ylabel="label d(model, executed)",
+        title="labels under 8 plant poses (red: the pose decides)",
+    )
     a1.legend(loc="upper right")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -318,13 +430,23 @@ def plot(r: dict[str, Any], path: Path) -> Path:
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.partial_pours", description=__doc__.split("\n\n")[0])
     ap.add_argument("--sets", type=Path, nargs="+", default=[], help="saved ceiling sets (ceiling_train_seed<k>.npz)")
-    ap.add_argument("--set-seeds", type=int, nargs="+", default=None,
-                    help="the ladder seed of each set (default: from its file name)")
+    ap.add_argument(
+        "--set-seeds",
+        type=int,
+        nargs="+",
+        default=None,
+        help="the ladder seed of each set (default: from its file name)",
+    )
     ap.add_argument("--slots", type=int, default=5, help="env slots per execution (default 5)")
     ap.add_argument("--jitters", type=int, default=8, help="fresh plant-pose jitters (default 8)")
     ap.add_argument("--mde", type=Path, nargs="*", default=[], help="saved MDEs to read at the always-good pours")
-    ap.add_argument("--override", dest="overrides", action="append", default=[],
-                    help="Hydra override of the config the sets were made with (repeatable)")
+    ap.add_argument(
+        "--override",
+        dest="overrides",
+        action="append",
+        default=[],
+        help="Hydra override of the config the sets were made with (repeatable)",
+    )
     ap.add_argument("--out", type=Path, default=None, help="write the result as JSON here")
     ap.add_argument("--plot", type=Path, default=None, help="draw the pours and their labels here (PNG)")
     ap.add_argument("--from-json", type=Path, default=None, help="re-read an earlier --out instead of simulating")

@@ -44,8 +44,13 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--world", choices=("source", "target"), default="source")
     ap.add_argument("--problems", type=int, default=30)
     ap.add_argument("--out", type=Path, default=None)
-    ap.add_argument("--scatter", type=float, nargs="+", default=[0.035, 0.017, 0.010],
-                    help="outcome std s of a perfect model's plans (the ladder's reproducibility max_std)")
+    ap.add_argument(
+        "--scatter",
+        type=float,
+        nargs="+",
+        default=[0.035, 0.017, 0.010],
+        help="outcome std s of a perfect model's plans (the ladder's reproducibility max_std)",
+    )
     ap.add_argument("overrides", nargs="*")
     args = ap.parse_args(argv)
     if any(not s > 0 for s in args.scatter):
@@ -85,50 +90,99 @@ def main(argv: list[str] | None = None) -> dict:
             kind = "move" if st.a[0] < 0.5 else "pour"
             pours += kind == "pour"
             with torch.no_grad():
-                pred = dyn.predict(torch.as_tensor(st.s[None], dtype=torch.float32),
-                                   torch.as_tensor(st.a[None], dtype=torch.float32)).double().numpy()[0]
-            steps.append({"problem": k, "t": t, "kind": kind, "pour_index": pours if kind == "pour" else 0,
-                          "v_ctrl_before": float(st.s[3]), "action": st.a.tolist(),
-                          "dv_tgt_true": float(st.s_next[4] - st.s[4]), "dv_tgt_pred": float(pred[4] - st.s[4]),
-                          "err_v_tgt": float(pred[4] - st.s_next[4]), "err_v_ctrl": float(pred[3] - st.s_next[3]),
-                          "label": float(state_distance(pred[None], st.s_next[None], world.distance_weights)[0])})
+                pred = (
+                    dyn.predict(
+                        torch.as_tensor(st.s[None], dtype=torch.float32),
+                        torch.as_tensor(st.a[None], dtype=torch.float32),
+                    )
+                    .double()
+                    .numpy()[0]
+                )
+            steps.append(
+                {
+                    "problem": k,
+                    "t": t,
+                    "kind": kind,
+                    "pour_index": pours if kind == "pour" else 0,
+                    "v_ctrl_before": float(st.s[3]),
+                    "action": st.a.tolist(),
+                    "dv_tgt_true": float(st.s_next[4] - st.s[4]),
+                    "dv_tgt_pred": float(pred[4] - st.s[4]),
+                    "err_v_tgt": float(pred[4] - st.s_next[4]),
+                    "err_v_ctrl": float(pred[3] - st.s_next[3]),
+                    "label": float(state_distance(pred[None], st.s_next[None], world.distance_weights)[0]),
+                }
+            )
     done = [r for r in results if r is not None]
-    plan_rows = [{"problem": k, "goal": problems[k].goal, "final_v_tgt": float(r.states[-1, 4]),
-                  "planned_v_tgt": float(plans[k].states[-1, 4]), "n_actions": len(r.steps),
-                  "n_pours": int(sum(st.a[0] >= 0.5 for st in r.steps)), "goal_reached": bool(r.goal_reached),
-                  "spill": r.final_spill}
-                 for k, r in enumerate(results) if r is not None]
-    groups = {"move": [s for s in steps if s["kind"] == "move"],
-              "first pour": [s for s in steps if s["pour_index"] == 1],
-              "later pours": [s for s in steps if s["pour_index"] > 1],
-              "pours that moved water (|dv_tgt| > 0.02)": [s for s in steps if s["kind"] == "pour" and abs(s["dv_tgt_true"]) > 0.02]}
+    plan_rows = [
+        {
+            "problem": k,
+            "goal": problems[k].goal,
+            "final_v_tgt": float(r.states[-1, 4]),
+            "planned_v_tgt": float(plans[k].states[-1, 4]),
+            "n_actions": len(r.steps),
+            "n_pours": int(sum(st.a[0] >= 0.5 for st in r.steps)),
+            "goal_reached": bool(r.goal_reached),
+            "spill": r.final_spill,
+        }
+        for k, r in enumerate(results)
+        if r is not None
+    ]
+    groups = {
+        "move": [s for s in steps if s["kind"] == "move"],
+        "first pour": [s for s in steps if s["pour_index"] == 1],
+        "later pours": [s for s in steps if s["pour_index"] > 1],
+        "pours that moved water (|dv_tgt| > 0.02)": [
+            s for s in steps if s["kind"] == "pour" and abs(s["dv_tgt_true"]) > 0.02
+        ],
+    }
     summary = {}
-    lines = [f"{args.world} world: {len(done)} of {args.problems} plans found and executed, "
-             f"{sum(p['goal_reached'] for p in plan_rows)} reached the goal",
-             f"{'steps':<42} {'n':>4} {'mean err v_tgt':>15} {'mean |err v_tgt|':>17} {'median label':>13} {'labels > d_max':>15}"]
+    lines = [
+        f"{args.world} world: {len(done)} of {args.problems} plans found and executed, "
+        f"{sum(p['goal_reached'] for p in plan_rows)} reached the goal",
+        f"{'steps':<42} {'n':>4} {'mean err v_tgt':>15} {'mean |err v_tgt|':>17} {'median label':>13} {'labels > d_max':>15}",  # noqa: E501 (a table row's format reads best on one line)
+    ]
     for name, g in groups.items():
         if not g:
             continue
         e = np.array([s["err_v_tgt"] for s in g])
         lab = np.array([s["label"] for s in g])
-        summary[name] = {"n": len(g), "mean_err_v_tgt": float(e.mean()), "mean_abs_err_v_tgt": float(np.abs(e).mean()),
-                         "median_label": float(np.median(lab)), "labels_over_d_max": float((lab > exp.d_max).mean())}
+        summary[name] = {
+            "n": len(g),
+            "mean_err_v_tgt": float(e.mean()),
+            "mean_abs_err_v_tgt": float(np.abs(e).mean()),
+            "median_label": float(np.median(lab)),
+            "labels_over_d_max": float((lab > exp.d_max).mean()),
+        }
         r = summary[name]
-        lines.append(f"{name:<42} {r['n']:4d} {r['mean_err_v_tgt']:+15.3f} {r['mean_abs_err_v_tgt']:17.3f} "
-                     f"{r['median_label']:13.3f} {r['labels_over_d_max']:15.2f}")
+        lines.append(
+            f"{name:<42} {r['n']:4d} {r['mean_err_v_tgt']:+15.3f} {r['mean_abs_err_v_tgt']:17.3f} "
+            f"{r['median_label']:13.3f} {r['labels_over_d_max']:15.2f}"
+        )
     npours = np.array([p["n_pours"] for p in plan_rows])
     ok = np.array([p["goal_reached"] for p in plan_rows])
     for m in sorted(set(npours.tolist())):
-        lines.append(f"plans with {m} pour(s): {int((npours == m).sum())}, reached the goal {int(ok[npours == m].sum())}")
+        lines.append(
+            f"plans with {m} pour(s): {int((npours == m).sum())}, reached the goal {int(ok[npours == m].sum())}"
+        )
     tol = float(world.problems["tolerance"])
     offsets = np.array([p["planned_v_tgt"] - p["goal"] for p in plan_rows])
     bound = {str(s): perfect_model_success(offsets, tol, s) for s in args.scatter} if len(offsets) else {}
     if len(offsets):
-        lines.append(f"planned final v_tgt - goal: mean |offset| {np.abs(offsets).mean():.3f} (goal band +-{tol}); "
-                     "a perfect model with outcome scatter s would reach the goal with these plans' offsets in: "
-                     + ", ".join(f"s = {s}: {b:.2f}" for s, b in bound.items()))
-    result = {"world": args.world, "overrides": list(args.overrides), "summary": summary, "plans": plan_rows,
-              "steps": steps, "perfect_model_success_at_scatter": bound, "goal_tolerance": tol}
+        lines.append(
+            f"planned final v_tgt - goal: mean |offset| {np.abs(offsets).mean():.3f} (goal band +-{tol}); "
+            "a perfect model with outcome scatter s would reach the goal with these plans' offsets in: "
+            + ", ".join(f"s = {s}: {b:.2f}" for s, b in bound.items())
+        )
+    result = {
+        "world": args.world,
+        "overrides": list(args.overrides),
+        "summary": summary,
+        "plans": plan_rows,
+        "steps": steps,
+        "perfect_model_success_at_scatter": bound,
+        "goal_tolerance": tol,
+    }
     report("\n".join(lines), result, args.out)
     return result
 

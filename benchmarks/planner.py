@@ -62,8 +62,9 @@ def build_mde(kind: str, n_points: int, seed: int, config: PlannerConfig) -> tup
     return mde, info
 
 
-def batch_throughput(dynamics: Any, mde: Any, config: PlannerConfig, sizes: Sequence[int],
-                     seconds: float = 0.5) -> dict[int, float]:
+def batch_throughput(
+    dynamics: Any, mde: Any, config: PlannerConfig, sizes: Sequence[int], seconds: float = 0.5
+) -> dict[int, float]:
     """Rows per second of one dynamics + MDE evaluation call, per batch size."""
     ev = _Evaluator(dynamics, mde, Planner(dynamics, mde, config).sampler)
     rng = np.random.default_rng(0)
@@ -107,11 +108,22 @@ def plan_problems(planner: Planner, problems: list, seed: int) -> dict[str, Any]
     }
 
 
-def run(problems: int = 30, seed: int = 0, mde: str = "auto", mde_points: int = 1200, beta: float = 2.0,
-        d_max: float = 0.07, candidates: int = 9, candidate_problems: int = 5, unbatched_problems: int = 10,
-        throughput_seconds: float = 0.5, time_budget: float | None = None,
-        config: PlannerConfig | None = None, dynamics_path: str | None = None,
-        known_obstacles: bool = False) -> dict[str, Any]:
+def run(
+    problems: int = 30,
+    seed: int = 0,
+    mde: str = "auto",
+    mde_points: int = 1200,
+    beta: float = 2.0,
+    d_max: float = 0.07,
+    candidates: int = 9,
+    candidate_problems: int = 5,
+    unbatched_problems: int = 10,
+    throughput_seconds: float = 0.5,
+    time_budget: float | None = None,
+    config: PlannerConfig | None = None,
+    dynamics_path: str | None = None,
+    known_obstacles: bool = False,
+) -> dict[str, Any]:
     config = (config or PlannerConfig()).replace(beta=beta, d_max=d_max, n_candidates=candidates)
     if time_budget is not None:
         config = config.replace(time_budget=time_budget)
@@ -137,8 +149,12 @@ def run(problems: int = 30, seed: int = 0, mde: str = "auto", mde_points: int = 
     planner.plan(probs[0].start, probs[0].goal, seed=10**6)  # warm-up (lazy torch/OMPL init)
 
     result: dict[str, Any] = {
-        "machine": {"python": platform.python_version(), "torch": torch.__version__,
-                    "cpus": _cpu_count(), "torch_threads_planning": config.torch_threads},
+        "machine": {
+            "python": platform.python_version(),
+            "torch": torch.__version__,
+            "cpus": _cpu_count(),
+            "torch_threads_planning": config.torch_threads,
+        },
         "dynamics": dyn_info,
         "mde": mde_info,
         "precondition": {"beta": beta, "d_max": d_max},
@@ -156,16 +172,25 @@ def run(problems: int = 30, seed: int = 0, mde: str = "auto", mde_points: int = 
             times.append(cs.time_s)
             counts.append(len(cs))
             props.append(cs.propagations)
-        result["candidates"] = {"n": candidates, "problems": len(times),
-                                "median_time_s": statistics.median(times),
-                                "mean_found": float(np.mean(counts)),
-                                "propagations_per_s": sum(props) / sum(times)}
+        result["candidates"] = {
+            "n": candidates,
+            "problems": len(times),
+            "median_time_s": statistics.median(times),
+            "mean_found": float(np.mean(counts)),
+            "propagations_per_s": sum(props) / sum(times),
+        }
     p = result["planning"]
     result["targets"] = {
-        "propagations_per_s": {"target": TARGET_PROPS_PER_S, "value": p["propagations_per_s"],
-                               "met": p["propagations_per_s"] >= TARGET_PROPS_PER_S},
-        "median_plan_s": {"target": TARGET_MEDIAN_PLAN_S, "value": p["median_plan_s"],
-                          "met": p["median_plan_s"] <= TARGET_MEDIAN_PLAN_S},
+        "propagations_per_s": {
+            "target": TARGET_PROPS_PER_S,
+            "value": p["propagations_per_s"],
+            "met": p["propagations_per_s"] >= TARGET_PROPS_PER_S,
+        },
+        "median_plan_s": {
+            "target": TARGET_MEDIAN_PLAN_S,
+            "value": p["median_plan_s"],
+            "met": p["median_plan_s"] <= TARGET_MEDIAN_PLAN_S,
+        },
     }
     return result
 
@@ -198,8 +223,10 @@ def format_table(r: dict[str, Any]) -> str:
         ("MDE evaluations/s (rows past cheap checks)", f"{p['mde_evaluations_per_s']:,.0f}"),
         ("OMPL expansions/s (propagator calls)", f"{p['expansions_per_s']:,.0f}"),
         ("median plan time", f"{p['median_plan_s']:.3f} s"),
-        ("median plan time, found only",
-         "-" if p["median_plan_s_found"] is None else f"{p['median_plan_s_found']:.3f} s"),
+        (
+            "median plan time, found only",
+            "-" if p["median_plan_s_found"] is None else f"{p['median_plan_s_found']:.3f} s",
+        ),
         ("90th percentile plan time", f"{p['p90_plan_s']:.3f} s"),
         ("rejected by precondition", f"{p['rejected_fraction']:.2f} of MDE-evaluated rows"),
         ("terminations", ", ".join(f"{k}={v}" for k, v in p["terminations"].items())),
@@ -214,14 +241,15 @@ def format_table(r: dict[str, Any]) -> str:
     if "candidates" in r:
         c = r["candidates"]
         rows += [
-            (f"candidate sets (N={c['n']}, {c['problems']} problems)",
-             f"median {c['median_time_s']:.2f} s per problem"),
+            (
+                f"candidate sets (N={c['n']}, {c['problems']} problems)",
+                f"median {c['median_time_s']:.2f} s per problem",
+            ),
             ("candidates found per problem", f"{c['mean_found']:.1f} of {c['n']}"),
         ]
     for name, t in r["targets"].items():
         op = ">=" if name == "propagations_per_s" else "<="
-        rows.append((f"TARGET {name} {op} {t['target']:g}",
-                     f"{'MET' if t['met'] else 'NOT MET'} ({t['value']:,.3f})"))
+        rows.append((f"TARGET {name} {op} {t['target']:g}", f"{'MET' if t['met'] else 'NOT MET'} ({t['value']:,.3f})"))
     w = max(len(a) for a, _ in rows)
     return "\n".join(f"{a:<{w}}  {b}" for a, b in rows)
 
@@ -230,8 +258,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.planner", description=__doc__.split("\n\n")[0])
     ap.add_argument("--problems", type=int, default=30, help="problems planned with one candidate each")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--mde", choices=("auto", "real", "standin"), default="auto",
-                    help="auto: mde.GPMDE if it works, else the stand-in GP")
+    ap.add_argument(
+        "--mde",
+        choices=("auto", "real", "standin"),
+        default="auto",
+        help="auto: mde.GPMDE if it works, else the stand-in GP",
+    )
     ap.add_argument("--mde-points", type=int, default=1200)
     ap.add_argument("--beta", type=float, default=2.0)
     ap.add_argument("--d-max", type=float, default=0.07)
@@ -240,20 +272,37 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--unbatched-problems", type=int, default=10)
     ap.add_argument("--throughput-seconds", type=float, default=0.5, help="time per raw-throughput measurement")
     ap.add_argument("--time-budget", type=float, default=None, help="override the per-candidate time budget (s)")
-    ap.add_argument("--dynamics", default=None, metavar="CHECKPOINT",
-                    help="a trained dynamics.LearnedDynamics checkpoint (e.g. .cache/dynamics/model-*/model.pt) "
-                         "instead of the stand-in")
-    ap.add_argument("--known-obstacles", action="store_true",
-                    help="wrap the model with dynamics.ContactAwareDynamics, as experiment.known_obstacles does")
+    ap.add_argument(
+        "--dynamics",
+        default=None,
+        metavar="CHECKPOINT",
+        help="a trained dynamics.LearnedDynamics checkpoint (e.g. .cache/dynamics/model-*/model.pt) "
+        "instead of the stand-in",
+    )
+    ap.add_argument(
+        "--known-obstacles",
+        action="store_true",
+        help="wrap the model with dynamics.ContactAwareDynamics, as experiment.known_obstacles does",
+    )
     ap.add_argument("--out", type=Path, default=None, help="write the full result as JSON here")
     args = ap.parse_args(argv)
     if args.problems < 1:
         ap.error("--problems must be >= 1")
-    r = run(problems=args.problems, seed=args.seed, mde=args.mde, mde_points=args.mde_points,
-            beta=args.beta, d_max=args.d_max, candidates=args.candidates,
-            candidate_problems=args.candidate_problems, unbatched_problems=args.unbatched_problems,
-            throughput_seconds=args.throughput_seconds, time_budget=args.time_budget, dynamics_path=args.dynamics,
-            known_obstacles=args.known_obstacles)
+    r = run(
+        problems=args.problems,
+        seed=args.seed,
+        mde=args.mde,
+        mde_points=args.mde_points,
+        beta=args.beta,
+        d_max=args.d_max,
+        candidates=args.candidates,
+        candidate_problems=args.candidate_problems,
+        unbatched_problems=args.unbatched_problems,
+        throughput_seconds=args.throughput_seconds,
+        time_budget=args.time_budget,
+        dynamics_path=args.dynamics,
+        known_obstacles=args.known_obstacles,
+    )
     report(format_table(r), r, args.out)
     return 0
 

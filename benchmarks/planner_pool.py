@@ -1,5 +1,6 @@
 """Planning in worker processes vs in-process, on the experiment's own batches:
-``python -m benchmarks.planner_pool [--workers 2] [--mde CHECKPOINT] [--out benchmarks/results/planner_pool.json] [overrides]``.
+``python -m benchmarks.planner_pool [--workers 2] [--mde CHECKPOINT]
+[--out benchmarks/results/planner_pool.json] [overrides]``.
 
 Why: planning is the largest cost of ``python -m active.run`` and every planner run is
 single-threaded; :class:`planner.pool.PlanPool` spreads a batch over processes. This measures
@@ -49,8 +50,19 @@ def fingerprint(r: Any) -> Any:
         return ("set", [fingerprint(t) for t in r.candidates], [fingerprint(x) for x in r.runs])
     if isinstance(r, PlanResult):
         s = r.stats
-        return ("plan", fingerprint(r.trajectory), s.found, s.propagations, s.mde_evaluations, s.expansions,
-                s.rejected, s.tree_size, s.termination, s.seed, s.best_goal_distance)
+        return (
+            "plan",
+            fingerprint(r.trajectory),
+            s.found,
+            s.propagations,
+            s.mde_evaluations,
+            s.expansions,
+            s.rejected,
+            s.tree_size,
+            s.termination,
+            s.seed,
+            s.best_goal_distance,
+        )
     if r is None:
         return None
     return tuple(getattr(r, k).tobytes() for k in ("actions", "states", "mu", "sigma"))
@@ -71,19 +83,43 @@ def experiment_batches(cfg: dict, seed: int, iteration: int) -> tuple[Any, Any, 
     dyn = planning_dynamics(cfg["dynamics"], cfg["world"], world, exp)
     info = {"load_s": time.perf_counter() - t, "known_obstacles": exp.known_obstacles}
     test = sample_problems(world, exp.test_problems, derive_seed(seed, "test"), world="target")
-    train = sample_problems(world, exp.trajectories_per_iteration, derive_seed(seed, "train", iteration),
-                            world="target")[:exp.refit_every]
+    train = sample_problems(
+        world, exp.trajectories_per_iteration, derive_seed(seed, "train", iteration), world="target"
+    )[: exp.refit_every]
     method = exp.methods[0]
     batches = {
-        "test": [PlanRequest("plan", p.start, p.goal, beta=exp.beta_test, d_max=exp.d_max,
-                             seed=derive_seed(seed, "test-plan", iteration, k)) for k, p in enumerate(test)],
-        "train": [PlanRequest("candidates", p.start, p.goal, n=exp.candidates, beta=exp.beta(iteration),
-                              d_max=exp.d_max, seed=derive_seed(seed, method, "plan", iteration, k))
-                  for k, p in enumerate(train)],
+        "test": [
+            PlanRequest(
+                "plan",
+                p.start,
+                p.goal,
+                beta=exp.beta_test,
+                d_max=exp.d_max,
+                seed=derive_seed(seed, "test-plan", iteration, k),
+            )
+            for k, p in enumerate(test)
+        ],
+        "train": [
+            PlanRequest(
+                "candidates",
+                p.start,
+                p.goal,
+                n=exp.candidates,
+                beta=exp.beta(iteration),
+                d_max=exp.d_max,
+                seed=derive_seed(seed, method, "plan", iteration, k),
+            )
+            for k, p in enumerate(train)
+        ],
     }
-    info.update(experiment=exp.name, train_method=method, candidates=exp.candidates,
-                propagation_budget=planner_cfg.propagation_budget, beta_test=exp.beta_test,
-                beta_train=exp.beta(iteration))
+    info.update(
+        experiment=exp.name,
+        train_method=method,
+        candidates=exp.candidates,
+        propagation_budget=planner_cfg.propagation_budget,
+        beta_test=exp.beta_test,
+        beta_train=exp.beta(iteration),
+    )
     return dyn, planner_cfg, batches, info
 
 
@@ -108,8 +144,14 @@ def _found(results: list) -> int:
     return sum(len(r.candidates) if isinstance(r, CandidateSet) else int(r.found) for r in results)
 
 
-def run(overrides: Sequence[str] = (), workers: int = 2, mde_path: str | None = None, seed: int = 0,
-        iteration: int = 0, repeat: int = 2) -> dict[str, Any]:
+def run(
+    overrides: Sequence[str] = (),
+    workers: int = 2,
+    mde_path: str | None = None,
+    seed: int = 0,
+    iteration: int = 0,
+    repeat: int = 2,
+) -> dict[str, Any]:
     from active.run import compose_config
 
     load_before = os.getloadavg()
@@ -122,15 +164,26 @@ def run(overrides: Sequence[str] = (), workers: int = 2, mde_path: str | None = 
         mde = load(mde_path)
         mde_info = f"{mde!r} from {mde_path}"
     result: dict[str, Any] = {
-        "machine": {"python": platform.python_version(), "torch": torch.__version__, "cpus": available_cpus(),
-                    "torch_threads_planning": planner_cfg.torch_threads},
-        "setup": info, "mde": mde_info, "workers": workers, "overrides": list(overrides),
-        "seed": seed, "iteration": iteration, "batches": {},
+        "machine": {
+            "python": platform.python_version(),
+            "torch": torch.__version__,
+            "cpus": available_cpus(),
+            "torch_threads_planning": planner_cfg.torch_threads,
+        },
+        "setup": info,
+        "mde": mde_info,
+        "workers": workers,
+        "overrides": list(overrides),
+        "seed": seed,
+        "iteration": iteration,
+        "batches": {},
     }
     result["parallel_capacity_before"] = parallel_capacity(workers)
     local = PlanPool(dyn, planner_cfg, workers=1)
-    warm = [PlanRequest("plan", r.start, r.goal, beta=r.beta, d_max=r.d_max, seed=10**6 + i)
-            for i, r in enumerate(batches["test"][:workers])]  # one per worker; lazy torch / OMPL set-up
+    warm = [
+        PlanRequest("plan", r.start, r.goal, beta=r.beta, d_max=r.d_max, seed=10**6 + i)
+        for i, r in enumerate(batches["test"][:workers])
+    ]  # one per worker; lazy torch / OMPL set-up
     t = time.perf_counter()
     local.run(warm[:1], mde)
     result["warmup_in_process_s"] = time.perf_counter() - t
@@ -147,7 +200,7 @@ def run(overrides: Sequence[str] = (), workers: int = 2, mde_path: str | None = 
         result["warmup_workers_s"] = time.perf_counter() - t
         for rep in range(repeat):  # alternating order: a drift of the machine's speed hits both sides alike
             for name, reqs in batches.items():
-                for side in (("here", "pool") if rep % 2 == 0 else ("pool", "here")):
+                for side in ("here", "pool") if rep % 2 == 0 else ("pool", "here"):
                     t = time.perf_counter()
                     got = (local if side == "here" else pool).run(reqs, mde)
                     times[name][side].append(time.perf_counter() - t)
@@ -161,9 +214,15 @@ def run(overrides: Sequence[str] = (), workers: int = 2, mde_path: str | None = 
         here, there = statistics.median(times[name]["here"]), statistics.median(times[name]["pool"])
         res = want[name][1]
         result["batches"][name] = {
-            "requests": len(reqs), "planner_runs": _runs(res), "found": _found(res),
-            "in_process_s": here, "workers_s": there, "speedup": here / there,
-            "in_process_s_all": times[name]["here"], "workers_s_all": times[name]["pool"], "identical": same[name],
+            "requests": len(reqs),
+            "planner_runs": _runs(res),
+            "found": _found(res),
+            "in_process_s": here,
+            "workers_s": there,
+            "speedup": here / there,
+            "in_process_s_all": times[name]["here"],
+            "workers_s_all": times[name]["pool"],
+            "identical": same[name],
         }
     result["parallel_capacity_after"] = parallel_capacity(workers)
     # above ~0 another job shared the machine when the bench started, and the figures are not clean
@@ -174,29 +233,48 @@ def run(overrides: Sequence[str] = (), workers: int = 2, mde_path: str | None = 
 def format_table(r: dict[str, Any]) -> str:
     s = r["setup"]
     rows = [
-        ("machine", f"{r['machine']['cpus']} CPUs, torch {r['machine']['torch']}, "
-                    f"{r['machine']['torch_threads_planning']} torch thread per planner"),
-        ("setup", f"experiment={s['experiment']}, budget {s['propagation_budget']} propagations per run, "
-                  f"known obstacles {s['known_obstacles']}"),
+        (
+            "machine",
+            f"{r['machine']['cpus']} CPUs, torch {r['machine']['torch']}, "
+            f"{r['machine']['torch_threads_planning']} torch thread per planner",
+        ),
+        (
+            "setup",
+            f"experiment={s['experiment']}, budget {s['propagation_budget']} propagations per run, "
+            f"known obstacles {s['known_obstacles']}",
+        ),
         ("MDE", r["mde"]),
         ("load average (1 min) at the start", f"{r['load_average_1min_before']:.2f} (> ~0.3: other jobs ran)"),
-        (f"CPU capacity of {r['workers']} processes", f"{r['parallel_capacity_before']:.2f} / "
-                                                   f"{r['parallel_capacity_after']:.2f} cores (before / after; "
-                                                   f"the ceiling of the speedup)"),
+        (
+            f"CPU capacity of {r['workers']} processes",
+            f"{r['parallel_capacity_before']:.2f} / "
+            f"{r['parallel_capacity_after']:.2f} cores (before / after; "
+            f"the ceiling of the speedup)",
+        ),
         (f"worker start-up ({r['workers']} processes, spawn)", f"{r['startup_s']:.1f} s (once per run)"),
-        ("first plans (warm-up)", f"in-process {r['warmup_in_process_s']:.2f} s, workers "
-                                  f"{r['warmup_workers_s']:.2f} s (once per run)"),
+        (
+            "first plans (warm-up)",
+            f"in-process {r['warmup_in_process_s']:.2f} s, workers {r['warmup_workers_s']:.2f} s (once per run)",
+        ),
     ]
     for name, b in r["batches"].items():
-        what = (f"{b['requests']} test plans" if name == "test"
-                else f"{b['requests']} problems x {s['candidates']} candidates")
+        what = (
+            f"{b['requests']} test plans"
+            if name == "test"
+            else f"{b['requests']} problems x {s['candidates']} candidates"
+        )
         rows += [
             (f"batch {name}: {what}", f"{b['planner_runs']} planner runs, {b['found']} found"),
-            ("  in-process (workers=1), median", f"{b['in_process_s']:.2f} s  "
-                                                 f"({', '.join(f'{x:.2f}' for x in b['in_process_s_all'])})"),
-            (f"  workers={r['workers']}, median", f"{b['workers_s']:.2f} s  "
-                                                 f"({', '.join(f'{x:.2f}' for x in b['workers_s_all'])})  "
-                                                 f"speedup x{b['speedup']:.2f}"),
+            (
+                "  in-process (workers=1), median",
+                f"{b['in_process_s']:.2f} s  ({', '.join(f'{x:.2f}' for x in b['in_process_s_all'])})",
+            ),
+            (
+                f"  workers={r['workers']}, median",
+                f"{b['workers_s']:.2f} s  "
+                f"({', '.join(f'{x:.2f}' for x in b['workers_s_all'])})  "
+                f"speedup x{b['speedup']:.2f}",
+            ),
             ("  results identical (every repeat)", "yes" if b["identical"] else "NO"),
         ]
     w = max(len(a) for a, _ in rows)
@@ -205,11 +283,16 @@ def format_table(r: dict[str, Any]) -> str:
 
 def add_batch_arguments(ap: argparse.ArgumentParser, iteration: int = 0) -> None:
     """The options of a benchmark that plans the experiment's own batches (:func:`experiment_batches`)."""
-    ap.add_argument("--mde", default=None, metavar="CHECKPOINT",
-                    help="a saved MDE, e.g. a run's mde_iterNNN.pt (default: none, model-only planning)")
+    ap.add_argument(
+        "--mde",
+        default=None,
+        metavar="CHECKPOINT",
+        help="a saved MDE, e.g. a run's mde_iterNNN.pt (default: none, model-only planning)",
+    )
     ap.add_argument("--seed", type=int, default=0, help="the run seed the problems and plan seeds derive from")
-    ap.add_argument("--iteration", type=int, default=iteration,
-                    help="the iteration the plan seeds and training beta are of")
+    ap.add_argument(
+        "--iteration", type=int, default=iteration, help="the iteration the plan seeds and training beta are of"
+    )
     ap.add_argument("--repeat", type=int, default=2, help="timed repeats of each batch and path (median reported)")
     ap.add_argument("--out", type=Path, default=None, help="write the result as JSON here")
     ap.add_argument("overrides", nargs="*", help="Hydra overrides of the experiment config (default experiment=quick)")
@@ -231,8 +314,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.workers < 2:
         ap.error("--workers must be >= 2 (workers=1 is the in-process baseline, always measured)")
     check_batch_arguments(ap, args)
-    r = run(args.overrides, workers=args.workers, mde_path=args.mde, seed=args.seed, iteration=args.iteration,
-            repeat=args.repeat)
+    r = run(
+        args.overrides,
+        workers=args.workers,
+        mde_path=args.mde,
+        seed=args.seed,
+        iteration=args.iteration,
+        repeat=args.repeat,
+    )
     report(format_table(r), r, args.out)
     return 0 if all(b["identical"] for b in r["batches"].values()) else 1
 

@@ -34,8 +34,11 @@ from planner.results import CandidateSet
 #: profiled functions whose cumulative time makes each part (file suffix, function name)
 PARTS = {
     "contact check": [("sim/contact.py", "first_contact")],
-    "learned model": [("dynamics/model.py", "predict_np"), ("dynamics/model.py", "predict"),
-                      ("dynamics/ensemble.py", "predict_np")],
+    "learned model": [
+        ("dynamics/model.py", "predict_np"),
+        ("dynamics/model.py", "predict"),
+        ("dynamics/ensemble.py", "predict_np"),
+    ],
     "MDE": [("planner/rrt.py", "deviation")],
 }
 TOTAL = ("planner/rrt.py", "_solve_with_ompl")
@@ -100,8 +103,9 @@ def _path_models(dyn: Any) -> dict[str, Any]:
     return models
 
 
-def run(overrides: Sequence[str] = (), mde_path: str | None = None, seed: int = 0, iteration: int = 0,
-        repeat: int = 2) -> dict[str, Any]:
+def run(
+    overrides: Sequence[str] = (), mde_path: str | None = None, seed: int = 0, iteration: int = 0, repeat: int = 2
+) -> dict[str, Any]:
     from active.run import compose_config
     from mde.grouped import GroupedMDE
 
@@ -115,7 +119,7 @@ def run(overrides: Sequence[str] = (), mde_path: str | None = None, seed: int = 
     prints: dict[str, dict[str, Any]] = {p: {} for p in paths}
     props: dict[str, int] = {}
     for rep in range(repeat):  # alternating: a drift of the machine's speed hits both paths alike
-        for path in (paths if rep % 2 == 0 else paths[::-1]):
+        for path in paths if rep % 2 == 0 else paths[::-1]:
             for name, reqs in batches.items():
                 t = time.perf_counter()
                 got = pools[path].run(reqs, mde)
@@ -134,13 +138,22 @@ def run(overrides: Sequence[str] = (), mde_path: str | None = None, seed: int = 
         parts = {k: _cumulative(st, v) / total for k, v in PARTS.items()}
         parts["OMPL loop, bookkeeping, profiler"] = 1.0 - sum(parts.values())
         shares[path] = parts
-    result: dict[str, Any] = {"setup": info, "mde": mde_path, "overrides": list(overrides), "seed": seed,
-                              "iteration": iteration, "batches": {}, "shares": shares}
+    result: dict[str, Any] = {
+        "setup": info,
+        "mde": mde_path,
+        "overrides": list(overrides),
+        "seed": seed,
+        "iteration": iteration,
+        "batches": {},
+        "shares": shares,
+    }
     for name, reqs in batches.items():
         med = {p: statistics.median(times[p][name]) for p in paths}
         result["batches"][name] = {
-            "requests": len(reqs), "propagations_numpy_path": props[name],
-            "seconds": med, "seconds_all": {p: times[p][name] for p in paths},
+            "requests": len(reqs),
+            "propagations_numpy_path": props[name],
+            "seconds": med,
+            "seconds_all": {p: times[p][name] for p in paths},
             "propagations_per_s_numpy_path": props[name] / med["numpy"],
             **{f"speedup_numpy_over_{p}": med[p] / med["numpy"] for p in paths[1:]},
             **{f"same_plans_{p}": prints["numpy"][name] == prints[p][name] for p in paths[1:]},
@@ -151,15 +164,25 @@ def run(overrides: Sequence[str] = (), mde_path: str | None = None, seed: int = 
 def format_table(r: dict[str, Any]) -> str:
     paths = list(r["shares"])
     others = paths[1:]
-    lines = [f"setup: {r['setup']}", f"MDE: {r['mde']}", "",
-             f"{'batch':<8} {'propagations':>12} " + " ".join(f"{p + ' path s':>15}" for p in paths)
-             + " " + " ".join(f"{'x over ' + p:>14}" for p in others) + f" {'prop/s (numpy)':>15}  same plans"]
+    lines = [
+        f"setup: {r['setup']}",
+        f"MDE: {r['mde']}",
+        "",
+        f"{'batch':<8} {'propagations':>12} "
+        + " ".join(f"{p + ' path s':>15}" for p in paths)
+        + " "
+        + " ".join(f"{'x over ' + p:>14}" for p in others)
+        + f" {'prop/s (numpy)':>15}  same plans",
+    ]
     for name, b in r["batches"].items():
-        lines.append(f"{name:<8} {b['propagations_numpy_path']:>12} "
-                     + " ".join(f"{b['seconds'][p]:>15.2f}" for p in paths) + " "
-                     + " ".join(f"{b[f'speedup_numpy_over_{p}']:>14.2f}" for p in others)
-                     + f" {b['propagations_per_s_numpy_path']:>15.0f}  "
-                     + ", ".join(f"{p}: {'yes' if b[f'same_plans_{p}'] else 'no'}" for p in others))
+        lines.append(
+            f"{name:<8} {b['propagations_numpy_path']:>12} "
+            + " ".join(f"{b['seconds'][p]:>15.2f}" for p in paths)
+            + " "
+            + " ".join(f"{b[f'speedup_numpy_over_{p}']:>14.2f}" for p in others)
+            + f" {b['propagations_per_s_numpy_path']:>15.0f}  "
+            + ", ".join(f"{p}: {'yes' if b[f'same_plans_{p}'] else 'no'}" for p in others)
+        )
     lines += ["", "share of planning time (profiled pass, both batches)"]
     names = list(next(iter(r["shares"].values())))
     lines.append(f"{'part':<34} " + " ".join(f"{p + ' path':>12}" for p in paths))

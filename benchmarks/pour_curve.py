@@ -34,15 +34,22 @@ def _position(text: str) -> tuple[float, float]:
 
 
 def plant_jitters(world, k: int, seed: int = 0) -> np.ndarray:
-    """k plant-pose jitters (dx, dy, dtilt), drawn as the problems draw them (:func:`task.problems.draw_plant_jitter`)."""
+    """k plant-pose jitters (dx, dy, dtilt), drawn as the problems draw them
+    (:func:`task.problems.draw_plant_jitter`)."""
     from task.problems import draw_plant_jitter
 
     rng = np.random.default_rng(seed)
     return np.array([draw_plant_jitter(world.plant, rng) for _ in range(k)])
 
 
-def run(positions: Sequence[tuple[float, float]], holds: Sequence[float], thetas: np.ndarray,
-        overrides: Sequence[str] = (), world_name: str = "source", jitters: int = 1) -> dict:
+def run(
+    positions: Sequence[tuple[float, float]],
+    holds: Sequence[float],
+    thetas: np.ndarray,
+    overrides: Sequence[str] = (),
+    world_name: str = "source",
+    jitters: int = 1,
+) -> dict:
     import dynamics
     from active.run import compose_config
     from sim.execute import PouringExecutor
@@ -66,8 +73,17 @@ def run(positions: Sequence[tuple[float, float]], holds: Sequence[float], thetas
     try:
         blocked = ex.start_obstacles(world_name, np.array(starts), np.array(jits))  # e.g. a leaf where the cup would be
         run_idx = [i for i, b in enumerate(blocked) if b is None]
-        ran = ex.run(world_name, np.array(starts)[run_idx], [acts[i] for i in run_idx],
-                     plant_jitter=np.array(jits)[run_idx], goals=[0.5] * len(run_idx)) if run_idx else []
+        ran = (
+            ex.run(
+                world_name,
+                np.array(starts)[run_idx],
+                [acts[i] for i in run_idx],
+                plant_jitter=np.array(jits)[run_idx],
+                goals=[0.5] * len(run_idx),
+            )
+            if run_idx
+            else []
+        )
     finally:
         ex.close()
     res: list = [None] * len(acts)
@@ -89,18 +105,34 @@ def run(positions: Sequence[tuple[float, float]], holds: Sequence[float], thetas
             curves.append({"x": key[0], "y": key[1], "hold": key[2], "blocked_by": blocked[idx[0, 0]]})
             continue
         sim_vt, model_vt = vt[:, ran_here].mean(1), pred[idx[:, 0], 4]
-        curve = {"x": key[0], "y": key[1], "hold": key[2], "sim_v_tgt": sim_vt.tolist(),
-                 "sim_spill": spill[:, ran_here].mean(1).tolist(), "model_v_tgt": model_vt.tolist(),
-                 "mean_abs_error": float(np.abs(vt[:, ran_here] - model_vt[:, None]).mean()),
-                 "largest_step": float(np.abs(np.diff(sim_vt)).max())}
+        curve = {
+            "x": key[0],
+            "y": key[1],
+            "hold": key[2],
+            "sim_v_tgt": sim_vt.tolist(),
+            "sim_spill": spill[:, ran_here].mean(1).tolist(),
+            "model_v_tgt": model_vt.tolist(),
+            "mean_abs_error": float(np.abs(vt[:, ran_here] - model_vt[:, None]).mean()),
+            "largest_step": float(np.abs(np.diff(sim_vt)).max()),
+        }
         if nj > 1:  # per plant pose, and the share of poses where the pour was clean (spill <= 2 %, not stuck);
             # a pose that blocks the start counts as not clean (the cup cannot pour from there)
             clean = (spill <= 0.02) & ~stuck & ~np.isnan(spill)
-            curve.update(sim_v_tgt_per_jitter=vt.tolist(), sim_spill_per_jitter=spill.tolist(),
-                         stuck_per_jitter=stuck.tolist(), poses_run=int(ran_here.sum()), clean_share=clean.mean(1).tolist())
+            curve.update(
+                sim_v_tgt_per_jitter=vt.tolist(),
+                sim_spill_per_jitter=spill.tolist(),
+                stuck_per_jitter=stuck.tolist(),
+                poses_run=int(ran_here.sum()),
+                clean_share=clean.mean(1).tolist(),
+            )
         curves.append(curve)
-    return {"thetas": thetas.tolist(), "overrides": list(overrides), "world": world_name,
-            "plant_jitters": jit.tolist(), "curves": curves}
+    return {
+        "thetas": thetas.tolist(),
+        "overrides": list(overrides),
+        "world": world_name,
+        "plant_jitters": jit.tolist(),
+        "curves": curves,
+    }
 
 
 def format_table(r: dict) -> str:
@@ -108,23 +140,34 @@ def format_table(r: dict) -> str:
     lines = ["theta            " + " ".join(f"{t:5.2f}" for t in th)]
     for c in r["curves"]:
         if "blocked_by" in c:
-            lines.append(f"({c['x']:.2f}, {c['y']:.2f}) hold {c['hold']:.1f}  not run: the cup overlaps the {c['blocked_by']}")
+            lines.append(
+                f"({c['x']:.2f}, {c['y']:.2f}) hold {c['hold']:.1f}  not run: the cup overlaps the {c['blocked_by']}"
+            )
             continue
-        lines.append(f"({c['x']:.2f}, {c['y']:.2f}) hold {c['hold']:.1f}  mean abs error {c['mean_abs_error']:.3f}, "
-                     f"largest step between angles {c['largest_step']:.2f}")
+        lines.append(
+            f"({c['x']:.2f}, {c['y']:.2f}) hold {c['hold']:.1f}  mean abs error {c['mean_abs_error']:.3f}, "
+            f"largest step between angles {c['largest_step']:.2f}"
+        )
         lines.append("  simulated      " + " ".join(f"{v:5.2f}" for v in c["sim_v_tgt"]))
         lines.append("  model          " + " ".join(f"{v:5.2f}" for v in c["model_v_tgt"]))
         lines.append("  spill          " + " ".join(f"{v:5.2f}" for v in c["sim_spill"]))
         if "clean_share" in c:
-            lines.append(f"  clean share ({c['poses_run']} of {len(r['plant_jitters'])} plant poses leave room to pour)")
+            lines.append(
+                f"  clean share ({c['poses_run']} of {len(r['plant_jitters'])} plant poses leave room to pour)"
+            )
             lines.append("                 " + " ".join(f"{v:5.2f}" for v in c["clean_share"]))
     return "\n".join(lines)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.pour_curve", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--positions", type=_position, nargs="+", default=[(0.36, 0.20), (0.40, 0.16)],
-                    help="start positions X,Y (m) of the full, upright cup")
+    ap.add_argument(
+        "--positions",
+        type=_position,
+        nargs="+",
+        default=[(0.36, 0.20), (0.40, 0.16)],
+        help="start positions X,Y (m) of the full, upright cup",
+    )
     ap.add_argument("--holds", type=float, nargs="+", default=[0.0, 0.5, 1.0], help="hold times (s)")
     ap.add_argument("--theta-range", type=float, nargs=2, default=[1.1, 1.7], help="tilt angles from, to (rad)")
     ap.add_argument("--angles", type=int, default=16, help="angles on that range")
@@ -139,8 +182,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         ap.error(f"--world {args.world!r}: allowed source, target")
     if args.jitters < 1:
         ap.error(f"--jitters {args.jitters}: allowed >= 1")
-    r = run(args.positions, args.holds, np.linspace(*args.theta_range, args.angles), args.overrides,
-            world_name=args.world, jitters=args.jitters)
+    r = run(
+        args.positions,
+        args.holds,
+        np.linspace(*args.theta_range, args.angles),
+        args.overrides,
+        world_name=args.world,
+        jitters=args.jitters,
+    )
     report(format_table(r), r, args.out)
     return 0
 

@@ -28,8 +28,16 @@ def _last_checkpoint(folder: Path) -> Path | None:
     return found[-1] if found else None
 
 
-def run_check(run_dir: Path, method: str | None, steps: int, lr: float, world_name: str, n_problems: int | None,
-              use_mde: bool, progress: bool = True) -> dict:
+def run_check(
+    run_dir: Path,
+    method: str | None,
+    steps: int,
+    lr: float,
+    world_name: str,
+    n_problems: int | None,
+    use_mde: bool,
+    progress: bool = True,
+) -> dict:
     import mde as mde_pkg
     from active.experiment import ExperimentConfig
     from active.planner_setup import build_planner_config, planning_dynamics
@@ -66,13 +74,26 @@ def run_check(run_dir: Path, method: str | None, steps: int, lr: float, world_na
     t0 = time.perf_counter()
     plans = []
     for k, prob in enumerate(problems):
-        r = planner.plan(prob.start, prob.goal, beta=exp.beta_test, d_max=exp.d_max,
-                         seed=derive_seed(seed, "test-plan", "refine-check", k))
+        r = planner.plan(
+            prob.start,
+            prob.goal,
+            beta=exp.beta_test,
+            d_max=exp.d_max,
+            seed=derive_seed(seed, "test-plan", "refine-check", k),
+        )
         plans.append(r.trajectory if r.found else None)
     t_plan = time.perf_counter() - t0
     idx = [k for k, p in enumerate(plans) if p is not None]
-    out = {"run_dir": str(run_dir), "mde": str(ckpt) if ckpt else None, "world": world_name, "problems": n,
-           "found": len(idx), "steps": steps, "lr": lr, "plan_seconds": t_plan}
+    out = {
+        "run_dir": str(run_dir),
+        "mde": str(ckpt) if ckpt else None,
+        "world": world_name,
+        "problems": n,
+        "found": len(idx),
+        "steps": steps,
+        "lr": lr,
+        "plan_seconds": t_plan,
+    }
     if not idx:
         out.update(success_unrefined=0.0, success_refined=0.0)
         return out
@@ -93,26 +114,42 @@ def run_check(run_dir: Path, method: str | None, steps: int, lr: float, world_na
     ex.close()
     rows = []
     for j, k in enumerate(idx):
-        rows.append({"problem": k, "goal": goals[j], "refined": bool(ref.refined[j]),
-                     "v_tgt_unrefined": float(before[j].states[-1, 4]), "v_tgt_refined": float(after[j].states[-1, 4]),
-                     "spill_unrefined": before[j].final_spill, "spill_refined": after[j].final_spill,
-                     "reached_unrefined": bool(before[j].goal_reached), "reached_refined": bool(after[j].goal_reached),
-                     "skipped": ref.skipped.get(j, "")})
+        rows.append(
+            {
+                "problem": k,
+                "goal": goals[j],
+                "refined": bool(ref.refined[j]),
+                "v_tgt_unrefined": float(before[j].states[-1, 4]),
+                "v_tgt_refined": float(after[j].states[-1, 4]),
+                "spill_unrefined": before[j].final_spill,
+                "spill_refined": after[j].final_spill,
+                "reached_unrefined": bool(before[j].goal_reached),
+                "reached_refined": bool(after[j].goal_reached),
+                "skipped": ref.skipped.get(j, ""),
+            }
+        )
     out.update(
         success_unrefined=sum(r["reached_unrefined"] for r in rows) / n,
         success_refined=sum(r["reached_refined"] for r in rows) / n,
         mean_abs_goal_error_unrefined=float(np.mean([abs(r["v_tgt_unrefined"] - r["goal"]) for r in rows])),
         mean_abs_goal_error_refined=float(np.mean([abs(r["v_tgt_refined"] - r["goal"]) for r in rows])),
-        refined_pours=int(ref.refined.sum()), refine_seconds=ref.wall_seconds,
+        refined_pours=int(ref.refined.sum()),
+        refine_seconds=ref.wall_seconds,
         sim_loss_before=np.nanmean(ref.loss_before).item() if len(ref.loss_before) else None,
         sim_loss_after=np.nanmean(ref.loss_after).item() if len(ref.loss_after) else None,
-        params_before=ref.params_before.tolist(), params_after=ref.params_after.tolist(), plans=rows)
+        params_before=ref.params_before.tolist(),
+        params_after=ref.params_after.tolist(),
+        plans=rows,
+    )
     return out
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.refine_check", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks.refine_check",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("run_dir", type=Path)
     ap.add_argument("--method", default=None, help="whose final MDE to plan with (default: the run's first method)")
     ap.add_argument("--no-mde", action="store_true", help="plan with the dynamics model alone (no precondition)")
@@ -128,10 +165,14 @@ def main(argv=None) -> None:
     if res["found"]:
         print(f"  {'':22s} {'unrefined':>10s} {'refined':>10s}")
         print(f"  {'success rate':22s} {res['success_unrefined']:10.2f} {res['success_refined']:10.2f}")
-        print(f"  {'mean |v_tgt - goal|':22s} {res['mean_abs_goal_error_unrefined']:10.3f} "
-              f"{res['mean_abs_goal_error_refined']:10.3f}")
-        print(f"  refined {res['refined_pours']} pours in {res['refine_seconds']:.0f} s; "
-              f"simulator loss {res['sim_loss_before']:.4f} -> {res['sim_loss_after']:.4f}")
+        print(
+            f"  {'mean |v_tgt - goal|':22s} {res['mean_abs_goal_error_unrefined']:10.3f} "
+            f"{res['mean_abs_goal_error_refined']:10.3f}"
+        )
+        print(
+            f"  refined {res['refined_pours']} pours in {res['refine_seconds']:.0f} s; "
+            f"simulator loss {res['sim_loss_before']:.4f} -> {res['sim_loss_after']:.4f}"
+        )
     path = args.out or args.run_dir / "refine_check.json"
     safeio.write_json(path, res, indent=1, default=float)
     print(f"wrote {path}")

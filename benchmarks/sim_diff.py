@@ -34,8 +34,13 @@ import numpy as np
 import safeio
 
 POUR = (0.31, 0.14, 1.8, 0.5)
-AGREEMENT_POURS = [(0.31, 0.14, 1.8, 0.5), (0.31, 0.14, 1.5, 0.5), (0.31, 0.14, 1.3, 1.0), (0.30, 0.16, 1.4, 0.3),
-                   (0.34, 0.16, 1.6, 0.2)]
+AGREEMENT_POURS = [
+    (0.31, 0.14, 1.8, 0.5),
+    (0.31, 0.14, 1.5, 0.5),
+    (0.31, 0.14, 1.3, 1.0),
+    (0.30, 0.16, 1.4, 0.3),
+    (0.34, 0.16, 1.6, 0.2),
+]
 
 
 def _maxrss() -> int:
@@ -61,15 +66,25 @@ def measure(n_envs: int, checkpoint_every: int | None) -> dict:
     out = dp.value_and_grad(params, wrt=("x", "y", "theta", "hold"), objective="in_target", horizon=horizon)
     t2 = time.perf_counter()
     rss1 = _maxrss()
-    est = DiffMPM.memory_bytes(n_envs, dp.N, dp.max_substeps, dp.K, dp.sim.res,
-                               boundary_density=dp.sim.sc.boundary_density)
+    est = DiffMPM.memory_bytes(
+        n_envs, dp.N, dp.max_substeps, dp.K, dp.sim.res, boundary_density=dp.sim.sc.boundary_density
+    )
     dp.close()
-    return {"n_envs": n_envs, "checkpoint_every": dp.K, "checkpointing": dp.K < dp.max_substeps,
-            "substeps": fwd.substeps, "particles_per_env": dp.N, "forward_s": t1 - t0,
-            "forward_backward_s": t2 - t1, "backward_s": dp.last_timing["backward"],
-            "backward_over_forward": dp.last_timing["backward"] / dp.last_timing["forward"],
-            "rss_delta_bytes": rss1 - rss0, "estimate_bytes": est,
-            "in_target_hard": float(fwd.in_target[0]), "grad_in_target_soft": {k: float(v[0]) for k, v in out.gradients.items()}}
+    return {
+        "n_envs": n_envs,
+        "checkpoint_every": dp.K,
+        "checkpointing": dp.K < dp.max_substeps,
+        "substeps": fwd.substeps,
+        "particles_per_env": dp.N,
+        "forward_s": t1 - t0,
+        "forward_backward_s": t2 - t1,
+        "backward_s": dp.last_timing["backward"],
+        "backward_over_forward": dp.last_timing["backward"] / dp.last_timing["forward"],
+        "rss_delta_bytes": rss1 - rss0,
+        "estimate_bytes": est,
+        "in_target_hard": float(fwd.in_target[0]),
+        "grad_in_target_soft": {k: float(v[0]) for k, v in out.gradients.items()},
+    }
 
 
 def agreement(pours=AGREEMENT_POURS, slots: int = 1) -> dict:
@@ -94,22 +109,41 @@ def agreement(pours=AGREEMENT_POURS, slots: int = 1) -> dict:
     dp.close()
     rows = []
     for b in range(len(P)):
-        row = {"params": P[b].tolist(), "prod_in_target": float(tgt[b, 0]), "diff_in_target": float(out.in_target[b]),
-               "prod_in_ctrl": float(ctrl[b, 0]), "diff_in_ctrl": float(out.in_ctrl[b]),
-               "diff_in_target_soft": float(out.in_target_soft[b])}
+        row = {
+            "params": P[b].tolist(),
+            "prod_in_target": float(tgt[b, 0]),
+            "diff_in_target": float(out.in_target[b]),
+            "prod_in_ctrl": float(ctrl[b, 0]),
+            "diff_in_ctrl": float(out.in_ctrl[b]),
+            "diff_in_target_soft": float(out.in_target_soft[b]),
+        }
         if slots > 1:
             s = float(tgt[b].std(ddof=1))
-            row.update({"slots": slots, "prod_in_target_mean": float(tgt[b].mean()), "prod_in_target_std": s,
-                        "prod_in_target_min": float(tgt[b].min()), "prod_in_target_max": float(tgt[b].max()),
-                        "diff_minus_prod_mean_in_std": float((out.in_target[b] - tgt[b].mean()) / s) if s > 0 else None})
+            row.update(
+                {
+                    "slots": slots,
+                    "prod_in_target_mean": float(tgt[b].mean()),
+                    "prod_in_target_std": s,
+                    "prod_in_target_min": float(tgt[b].min()),
+                    "prod_in_target_max": float(tgt[b].max()),
+                    "diff_minus_prod_mean_in_std": float((out.in_target[b] - tgt[b].mean()) / s) if s > 0 else None,
+                }
+            )
         rows.append(row)
-    return {"pours": rows, "max_abs_diff_in_target": max(abs(r["prod_in_target"] - r["diff_in_target"]) for r in rows),
-            "max_abs_diff_in_ctrl": max(abs(r["prod_in_ctrl"] - r["diff_in_ctrl"]) for r in rows)}
+    return {
+        "pours": rows,
+        "max_abs_diff_in_target": max(abs(r["prod_in_target"] - r["diff_in_target"]) for r in rows),
+        "max_abs_diff_in_ctrl": max(abs(r["prod_in_ctrl"] - r["diff_in_ctrl"]) for r in rows),
+    }
 
 
 #: the partial pours of tests/test_sim_diff.py's strict xfail (off-grid start poses)
-PARTIAL_POURS = [(0.3137, 0.1433, 1.5, 0.5), (0.3137, 0.1433, 1.3, 1.0), (0.3037, 0.1633, 1.4, 0.3),
-                 (0.3437, 0.1633, 1.6, 0.2)]
+PARTIAL_POURS = [
+    (0.3137, 0.1433, 1.5, 0.5),
+    (0.3137, 0.1433, 1.3, 1.0),
+    (0.3037, 0.1633, 1.4, 0.3),
+    (0.3437, 0.1633, 1.6, 0.2),
+]
 
 
 def refinement(steps: int) -> dict:
@@ -130,13 +164,22 @@ def refinement(steps: int) -> dict:
     ex.close()
     before = np.array([r.states[-1, 4] for r in prod[:B]])
     after = np.array([r.states[-1, 4] for r in prod[B:]])
-    return {"n_envs": B, "steps": steps, "wall_seconds": res.wall_seconds, "goals": goals.tolist(),
-            "initial_params": P.tolist(), "refined_params": res.params.tolist(),
-            "soft_loss_initial": res.loss_initial.tolist(), "soft_loss_best": res.loss_best.tolist(),
-            "improved_envs": int(np.sum(res.loss_best < res.loss_initial)), "failed": res.failed.tolist(),
-            "prod_abs_error_before": np.abs(before - goals).tolist(), "prod_abs_error_after": np.abs(after - goals).tolist(),
-            "prod_goal_reached_before": int(sum(bool(r.goal_reached) for r in prod[:B])),
-            "prod_goal_reached_after": int(sum(bool(r.goal_reached) for r in prod[B:]))}
+    return {
+        "n_envs": B,
+        "steps": steps,
+        "wall_seconds": res.wall_seconds,
+        "goals": goals.tolist(),
+        "initial_params": P.tolist(),
+        "refined_params": res.params.tolist(),
+        "soft_loss_initial": res.loss_initial.tolist(),
+        "soft_loss_best": res.loss_best.tolist(),
+        "improved_envs": int(np.sum(res.loss_best < res.loss_initial)),
+        "failed": res.failed.tolist(),
+        "prod_abs_error_before": np.abs(before - goals).tolist(),
+        "prod_abs_error_after": np.abs(after - goals).tolist(),
+        "prod_goal_reached_before": int(sum(bool(r.goal_reached) for r in prod[:B])),
+        "prod_goal_reached_after": int(sum(bool(r.goal_reached) for r in prod[B:])),
+    }
 
 
 def _atomic_json(path: str, obj: dict) -> None:
@@ -144,20 +187,27 @@ def _atomic_json(path: str, obj: dict) -> None:
 
 
 def _subprocess(args: list[str]) -> dict:
-    out = subprocess.run([sys.executable, "-m", "benchmarks.sim_diff", *args], capture_output=True, text=True,
-                         check=True)
+    out = subprocess.run(
+        [sys.executable, "-m", "benchmarks.sim_diff", *args], capture_output=True, text=True, check=True
+    )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.sim_diff", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks.sim_diff", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--out", default="bench_diff.json")
     ap.add_argument("--skip-refine", action="store_true")
     ap.add_argument("--refine-steps", type=int, default=4)
     ap.add_argument("--reuse-timing", action="store_true", help="take the timing rows from an existing --out file")
-    ap.add_argument("--partial-agreement", type=int, metavar="SLOTS", default=None,
-                    help="only: the xfail's partial pours, production in SLOTS slots each, against the differentiable solver")
+    ap.add_argument(
+        "--partial-agreement",
+        type=int,
+        metavar="SLOTS",
+        default=None,
+        help="only: the xfail's partial pours, production in SLOTS slots each, against the differentiable solver",
+    )
     ap.add_argument("--_one", nargs=2, metavar=("N_ENVS", "K"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.partial_agreement:
@@ -165,9 +215,11 @@ def main(argv: list[str] | None = None) -> None:
         print("| pour (x, y, theta, hold) | diff | production mean +- std (min..max) | diff - mean in std |")
         print("|---|---:|---:|---:|")
         for r in res["partial_agreement"]["pours"]:
-            print(f"| {tuple(r['params'])} | {r['diff_in_target']:.3f} | {r['prod_in_target_mean']:.3f} +- "
-                  f"{r['prod_in_target_std']:.3f} ({r['prod_in_target_min']:.3f}..{r['prod_in_target_max']:.3f}) | "
-                  f"{r['diff_minus_prod_mean_in_std']:+.1f} |")
+            print(
+                f"| {tuple(r['params'])} | {r['diff_in_target']:.3f} | {r['prod_in_target_mean']:.3f} +- "
+                f"{r['prod_in_target_std']:.3f} ({r['prod_in_target_min']:.3f}..{r['prod_in_target_max']:.3f}) | "
+                f"{r['diff_minus_prod_mean_in_std']:+.1f} |"
+            )
         _atomic_json(args.out, res)
         print(f"wrote {args.out}")
         return
@@ -180,29 +232,40 @@ def main(argv: list[str] | None = None) -> None:
     for i, (b, k) in enumerate((b, k) for b in (1, 8) for k in (0, 500, 10**6)):  # k = 0: ceil(sqrt(T)); 10**6: none
         r = reused[i] if reused else _subprocess(["--_one", str(b), str(k)])
         rows.append(r)
-        print(f"B={r['n_envs']:2d} K={r['checkpoint_every']:6d} fwd {r['forward_s']:6.2f} s  fwd+bwd "
-              f"{r['forward_backward_s']:6.2f} s  bwd/fwd {r['backward_over_forward']:4.2f}  rss +"
-              f"{r['rss_delta_bytes'] / 2**20:7.1f} MiB  est {r['estimate_bytes'] / 2**20:7.1f} MiB", flush=True)
+        print(
+            f"B={r['n_envs']:2d} K={r['checkpoint_every']:6d} fwd {r['forward_s']:6.2f} s  fwd+bwd "
+            f"{r['forward_backward_s']:6.2f} s  bwd/fwd {r['backward_over_forward']:4.2f}  rss +"
+            f"{r['rss_delta_bytes'] / 2**20:7.1f} MiB  est {r['estimate_bytes'] / 2**20:7.1f} MiB",
+            flush=True,
+        )
     result = {"pour": dict(zip(("x", "y", "theta", "hold"), POUR)), "timing_memory": rows}
     _atomic_json(args.out, result)  # partial result: a later --reuse-timing run can skip the timing
-    print("\n| B | K | checkpointing | forward s | forward+backward s | backward/forward | peak RSS delta MiB | estimate MiB |")
+    print(
+        "\n| B | K | checkpointing | forward s | forward+backward s | backward/forward | peak RSS delta MiB | estimate MiB |"  # noqa: E501 (a table row's format reads best on one line)
+    )
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['n_envs']} | {r['checkpoint_every']} | {r['checkpointing']} | {r['forward_s']:.2f} | "
-              f"{r['forward_backward_s']:.2f} | {r['backward_over_forward']:.2f} | {r['rss_delta_bytes'] / 2**20:.1f} | "
-              f"{r['estimate_bytes'] / 2**20:.1f} |")
+        print(
+            f"| {r['n_envs']} | {r['checkpoint_every']} | {r['checkpointing']} | {r['forward_s']:.2f} | "
+            f"{r['forward_backward_s']:.2f} | {r['backward_over_forward']:.2f} | {r['rss_delta_bytes'] / 2**20:.1f} | "
+            f"{r['estimate_bytes'] / 2**20:.1f} |"
+        )
     result["agreement"] = agreement()
     print("\nagreement with production (hard fractions):")
     for r in result["agreement"]["pours"]:
-        print(f"  {r['params']}: in_target prod {r['prod_in_target']:.3f} diff {r['diff_in_target']:.3f}; "
-              f"in_ctrl prod {r['prod_in_ctrl']:.3f} diff {r['diff_in_ctrl']:.3f}")
+        print(
+            f"  {r['params']}: in_target prod {r['prod_in_target']:.3f} diff {r['diff_in_target']:.3f}; "
+            f"in_ctrl prod {r['prod_in_ctrl']:.3f} diff {r['diff_in_ctrl']:.3f}"
+        )
     if not args.skip_refine:
         result["refinement"] = ref = refinement(args.refine_steps)
-        print(f"\nrefinement of {ref['n_envs']} pours, {ref['steps']} steps: {ref['wall_seconds']:.1f} s; soft loss "
-              f"{np.mean(ref['soft_loss_initial']):.4f} -> {np.mean(ref['soft_loss_best']):.4f} "
-              f"({ref['improved_envs']} envs improved); production |in_target - goal| mean "
-              f"{np.mean(ref['prod_abs_error_before']):.3f} -> {np.mean(ref['prod_abs_error_after']):.3f}, goals reached "
-              f"{ref['prod_goal_reached_before']} -> {ref['prod_goal_reached_after']}")
+        print(
+            f"\nrefinement of {ref['n_envs']} pours, {ref['steps']} steps: {ref['wall_seconds']:.1f} s; soft loss "
+            f"{np.mean(ref['soft_loss_initial']):.4f} -> {np.mean(ref['soft_loss_best']):.4f} "
+            f"({ref['improved_envs']} envs improved); production |in_target - goal| mean "
+            f"{np.mean(ref['prod_abs_error_before']):.3f} -> {np.mean(ref['prod_abs_error_after']):.3f}, goals reached "
+            f"{ref['prod_goal_reached_before']} -> {ref['prod_goal_reached_after']}"
+        )
     _atomic_json(args.out, result)
     print(f"wrote {args.out}")
 

@@ -25,10 +25,17 @@ import numpy as np
 import safeio
 
 #: stages of ``MPMSolver._substep`` in loop order (CPU: one task per environment runs its whole grid phase)
-STAGES_SERIAL = ("per env: clear grid, move bodies, particle to grid, grid update",
-                 "grid to particle (+ particle collider projection, J)")
-STAGES_PARALLEL = ("clear grid", "move bodies", "particle to grid", "grid update (gravity, collider BC)",
-                   "grid to particle (+ particle collider projection, J)")
+STAGES_SERIAL = (
+    "per env: clear grid, move bodies, particle to grid, grid update",
+    "grid to particle (+ particle collider projection, J)",
+)
+STAGES_PARALLEL = (
+    "clear grid",
+    "move bodies",
+    "particle to grid",
+    "grid update (gravity, collider BC)",
+    "grid to particle (+ particle collider projection, J)",
+)
 
 
 def profile(world_name: str = "default", envs: int = 32, substeps: int = 400, arch: str = "cpu") -> dict:
@@ -73,33 +80,57 @@ def profile(world_name: str = "default", envs: int = 32, substeps: int = 400, ar
     production = (time.perf_counter() - t0) / (per_tick * ticks)
     solver.close()
     total = sum(per_task.values())
-    rows = [{"stage": names[i] if i < len(names) else f"task {i}", "ms_per_substep": per_task[i] / substeps,
-             "share": per_task[i] / total} for i in sorted(per_task)]
-    return {"world": world_name, "envs": envs, "particles": n_particles, "substeps": substeps, "arch": arch,
-            "stages": rows, "kernel_ms_per_substep": total / substeps, "wall_ms_per_substep": 1e3 * wall / substeps,
-            "particle_substeps_per_s": n_particles * substeps / wall,
-            "production_wall_ms_per_substep": 1e3 * production, "production_particle_substeps_per_s": n_particles / production,
-            "machine": platform.machine(),
-            "processor": platform.processor() or platform.machine()}
+    rows = [
+        {
+            "stage": names[i] if i < len(names) else f"task {i}",
+            "ms_per_substep": per_task[i] / substeps,
+            "share": per_task[i] / total,
+        }
+        for i in sorted(per_task)
+    ]
+    return {
+        "world": world_name,
+        "envs": envs,
+        "particles": n_particles,
+        "substeps": substeps,
+        "arch": arch,
+        "stages": rows,
+        "kernel_ms_per_substep": total / substeps,
+        "wall_ms_per_substep": 1e3 * wall / substeps,
+        "particle_substeps_per_s": n_particles * substeps / wall,
+        "production_wall_ms_per_substep": 1e3 * production,
+        "production_particle_substeps_per_s": n_particles / production,
+        "machine": platform.machine(),
+        "processor": platform.processor() or platform.machine(),
+    }
 
 
 def table(result: dict) -> str:
-    lines = [f"{result['world']} world, B = {result['envs']}, {result['particles']} particles, {result['arch']}:",
-             f"{'stage':55s} {'ms/substep':>10s} {'share':>6s}"]
+    lines = [
+        f"{result['world']} world, B = {result['envs']}, {result['particles']} particles, {result['arch']}:",
+        f"{'stage':55s} {'ms/substep':>10s} {'share':>6s}",
+    ]
     for r in result["stages"]:
         lines.append(f"{r['stage']:55s} {r['ms_per_substep']:10.3f} {100 * r['share']:5.1f}%")
     lines.append(f"{'kernels, total':55s} {result['kernel_ms_per_substep']:10.3f}")
-    lines.append(f"wall {result['wall_ms_per_substep']:.3f} ms/substep, "
-                 f"{result['particle_substeps_per_s'] / 1e6:.2f} M particle-substeps/s (staged: one launch per substep)")
-    lines.append(f"production path (sim.execute: one launch per control tick; CPU: whole substeps per environment) "
-                 f"{result['production_wall_ms_per_substep']:.3f} ms/substep, "
-                 f"{result['production_particle_substeps_per_s'] / 1e6:.2f} M particle-substeps/s")
+    lines.append(
+        f"wall {result['wall_ms_per_substep']:.3f} ms/substep, "
+        f"{result['particle_substeps_per_s'] / 1e6:.2f} M particle-substeps/s (staged: one launch per substep)"
+    )
+    lines.append(
+        f"production path (sim.execute: one launch per control tick; CPU: whole substeps per environment) "
+        f"{result['production_wall_ms_per_substep']:.3f} ms/substep, "
+        f"{result['production_particle_substeps_per_s'] / 1e6:.2f} M particle-substeps/s"
+    )
     return "\n".join(lines)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.sim_profile", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks.sim_profile",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("--envs", type=int, default=32)
     ap.add_argument("--substeps", type=int, default=400)
     ap.add_argument("--world", default="default", help="a config of configs/world (default, medium, fine)")

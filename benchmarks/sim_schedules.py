@@ -77,18 +77,35 @@ def main(argv: Sequence[str] | None = None) -> int:
             times[way].append(dt)
     ex.close()
     ref = results["one thread"]
-    same = all(all(np.array_equal(a.poses, b.poses) and a.action_end == b.action_end and a.stuck_on == b.stuck_on
-                   for a, b in zip(ref, results[w])) for w in ways)
+    same = all(
+        all(
+            np.array_equal(a.poses, b.poses) and a.action_end == b.action_end and a.stuck_on == b.stuck_on
+            for a, b in zip(ref, results[w])
+        )
+        for w in ways
+    )
     med = {w: statistics.median(v) for w, v in times.items()}
     ticks = int(sum(len(s.poses) for s in ref))
-    result = {"n": args.n, "actions": args.actions, "workers": workers, "cpus": cpus, "rounds": args.rounds,
-              "seconds": med, "seconds_all": times, "trajectories_per_second": {w: args.n / s for w, s in med.items()},
-              "speedup_over_one_thread": {w: med["one thread"] / s for w, s in med.items()},
-              "process_pool_start_up_seconds": start_up, "identical": same, "schedule_ticks": ticks,
-              "load_average_1min": os.getloadavg()[0]}
+    result = {
+        "n": args.n,
+        "actions": args.actions,
+        "workers": workers,
+        "cpus": cpus,
+        "rounds": args.rounds,
+        "seconds": med,
+        "seconds_all": times,
+        "trajectories_per_second": {w: args.n / s for w, s in med.items()},
+        "speedup_over_one_thread": {w: med["one thread"] / s for w, s in med.items()},
+        "process_pool_start_up_seconds": start_up,
+        "identical": same,
+        "schedule_ticks": ticks,
+        "load_average_1min": os.getloadavg()[0],
+    }
     rows = [(w, f"{med[w]:.2f} s", f"{args.n / med[w]:.0f} traj/s", f"{med['one thread'] / med[w]:.2f}x") for w in ways]
-    lines = [f"{args.n} random target-world trajectories x {args.actions} actions ({ticks} schedule ticks), "
-             f"{workers} workers on {cpus} CPUs, median of {args.rounds}:"]
+    lines = [
+        f"{args.n} random target-world trajectories x {args.actions} actions ({ticks} schedule ticks), "
+        f"{workers} workers on {cpus} CPUs, median of {args.rounds}:"
+    ]
     lines += [f"  {w:<11} {a:>9} {b:>14} {c:>7}" for w, a, b, c in rows]
     lines += [f"  process pool start-up {start_up:.1f} s (once per executor); identical schedules: {same}"]
     report("\n".join(lines), result, args.out)

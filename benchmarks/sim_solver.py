@@ -29,8 +29,19 @@ from sim.scene import Body, EnvSpec, WaterBlock, open_box
 class ReferenceMPM88:
     """Batched mpm88 (Taichi's 88-line water), domain walls only: the speed of bare MLS-MPM."""
 
-    def __init__(self, B: int, N: int, res: tuple[int, int], dx: float, dt: float, bulk: float, p_vol: float,
-                 rho: float, gravity: float, init_x: np.ndarray):
+    def __init__(
+        self,
+        B: int,
+        N: int,
+        res: tuple[int, int],
+        dx: float,
+        dt: float,
+        bulk: float,
+        p_vol: float,
+        rho: float,
+        gravity: float,
+        init_x: np.ndarray,
+    ):
         self.B, self.N, self.res = B, N, res
         self.dx, self.dt, self.bulk, self.p_vol, self.p_mass, self.g = dx, dt, bulk, p_vol, rho * p_vol, gravity
         fb = ti.FieldsBuilder()
@@ -129,11 +140,14 @@ def _setup(scene: str, B: int, dx: float, arch: str) -> tuple[SimConfig, list[En
     from sim.world import WorldConfig
 
     world = WorldConfig.from_mapping(compose_config([])["world"])
-    return world.sim_config(B, arch=arch), [world.scene("target", (0.40 + 0.002 * (b % 5), 0.20, 0.0)) for b in range(B)]
+    return world.sim_config(B, arch=arch), [
+        world.scene("target", (0.40 + 0.002 * (b % 5), 0.20, 0.0)) for b in range(B)
+    ]
 
 
-def bench(envs=(1, 8, 32), seconds: float = 0.5, dx: float = 0.01, arch: str = "cpu", rounds: int = 3,
-          scene: str = "pouring") -> list[dict]:
+def bench(
+    envs=(1, 8, 32), seconds: float = 0.5, dx: float = 0.01, arch: str = "cpu", rounds: int = 3, scene: str = "pouring"
+) -> list[dict]:
     if scene not in SCENES:
         raise ValueError(f"scene = {scene!r}: allowed one of {SCENES}")
     init_taichi(arch)
@@ -146,8 +160,9 @@ def bench(envs=(1, 8, 32), seconds: float = 0.5, dx: float = 0.01, arch: str = "
         # the cup moves during the measurement: colliders with velocity, as in a pour
         solver.set_body_velocity(0, np.tile([[-0.1, 0.0]], (B, 1)), np.full(B, 0.3))
         x0 = np.stack([solver.positions(b)[:n_p] for b in range(B)])
-        ref = ReferenceMPM88(B, n_p, cfg.res, cfg.dx, cfg.dt, cfg.rho * cfg.sound_speed**2, cfg.dx**2 / cfg.ppc,
-                             cfg.rho, cfg.gravity, x0)
+        ref = ReferenceMPM88(
+            B, n_p, cfg.res, cfg.dx, cfg.dt, cfg.rho * cfg.sound_speed**2, cfg.dx**2 / cfg.ppc, cfg.rho, cfg.gravity, x0
+        )
 
         def ref_step(k, ref=ref):
             for _ in range(k):
@@ -164,9 +179,19 @@ def bench(envs=(1, 8, 32), seconds: float = 0.5, dx: float = 0.01, arch: str = "
             reference = max(reference, B * n_p * r_steps / r_secs)
         solver.close()
         ref.close()
-        rows.append({"scene": scene, "B": B, "particles_per_env": n_p, "grid": list(cfg.res), "solver_pss": ours,
-                     "reference_pss": reference, "ratio": ours / reference,
-                     "solver_substeps_per_s": ours / (B * n_p), "reference_substeps_per_s": reference / (B * n_p)})
+        rows.append(
+            {
+                "scene": scene,
+                "B": B,
+                "particles_per_env": n_p,
+                "grid": list(cfg.res),
+                "solver_pss": ours,
+                "reference_pss": reference,
+                "ratio": ours / reference,
+                "solver_substeps_per_s": ours / (B * n_p),
+                "reference_substeps_per_s": reference / (B * n_p),
+            }
+        )
     base = rows[0]["solver_pss"] if rows and rows[0]["B"] == 1 else None
     for r in rows:
         r["speedup_vs_B1"] = r["solver_pss"] / base if base else None
@@ -174,25 +199,42 @@ def bench(envs=(1, 8, 32), seconds: float = 0.5, dx: float = 0.01, arch: str = "
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.sim_solver", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks.sim_solver",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("--out", default="bench_sim.json")
     ap.add_argument("--envs", type=int, nargs="+", default=[1, 8, 32])
     ap.add_argument("--seconds", type=float, default=3.0, help="measuring time per case and side")
     ap.add_argument("--dx", type=float, default=0.01)
     ap.add_argument("--arch", default="cpu")
-    ap.add_argument("--scene", default="pouring", choices=SCENES,
-                    help="pouring: the first benchmark scene (ppc 4); world: the default world's target-world scene")
+    ap.add_argument(
+        "--scene",
+        default="pouring",
+        choices=SCENES,
+        help="pouring: the first benchmark scene (ppc 4); world: the default world's target-world scene",
+    )
     args = ap.parse_args(argv)
     rows = bench(args.envs, args.seconds, args.dx, args.arch, scene=args.scene)
-    print(f"{'B':>4} {'particles':>9} {'grid':>9} {'solver p-sub/s':>15} {'reference p-sub/s':>18} "
-          f"{'ratio':>6} {'vs B=1':>7}")
+    print(
+        f"{'B':>4} {'particles':>9} {'grid':>9} {'solver p-sub/s':>15} {'reference p-sub/s':>18} "
+        f"{'ratio':>6} {'vs B=1':>7}"
+    )
     for r in rows:
         sp = f"{r['speedup_vs_B1']:.2f}x" if r["speedup_vs_B1"] else "-"
-        print(f"{r['B']:>4} {r['particles_per_env']:>9} {'x'.join(map(str, r['grid'])):>9} {r['solver_pss']:>15.3g} "
-              f"{r['reference_pss']:>18.3g} {r['ratio']:>6.2f} {sp:>7}")
-    meta = {"scene": args.scene, "arch": args.arch, "dx": args.dx if args.scene == "pouring" else None, "cpu_count": os.cpu_count(), "machine": platform.machine(),
-            "targets": {"ratio_min": 0.7, "B32_over_B1_min": 2.0}}
+        print(
+            f"{r['B']:>4} {r['particles_per_env']:>9} {'x'.join(map(str, r['grid'])):>9} {r['solver_pss']:>15.3g} "
+            f"{r['reference_pss']:>18.3g} {r['ratio']:>6.2f} {sp:>7}"
+        )
+    meta = {
+        "scene": args.scene,
+        "arch": args.arch,
+        "dx": args.dx if args.scene == "pouring" else None,
+        "cpu_count": os.cpu_count(),
+        "machine": platform.machine(),
+        "targets": {"ratio_min": 0.7, "B32_over_B1_min": 2.0},
+    }
     safeio.write_json(args.out, {"meta": meta, "rows": rows})
     print(f"wrote {args.out}")
 

@@ -37,8 +37,16 @@ MM_A = 0.05715  # m, Martin & Moyce column base width (2.25 in)
 DAM_BREAK_TOLERANCE = 0.15
 
 #: SimConfig fields that make up the liquid model (not the scene, grid or time step of a case)
-PHYSICS_KEYS = ("ppc", "viscosity", "tension", "volume_correction", "volume_relax", "stretch_relax",
-                "boundary_density", "friction")
+PHYSICS_KEYS = (
+    "ppc",
+    "viscosity",
+    "tension",
+    "volume_correction",
+    "volume_relax",
+    "stretch_relax",
+    "boundary_density",
+    "friction",
+)
 
 
 def world_physics(world: str | Path | None = "default") -> dict[str, Any]:
@@ -74,14 +82,28 @@ def _atomic_json(path: Path, obj: dict) -> None:
 
 
 # ---------------------------------------------------------------------------------- dam break
-def run_dam_break(dx: float = 0.005, a: float = MM_A, sound_speed: float = 12.0, T_end: float = 3.4,
-                  sample_dt: float = 0.002, arch: str = "cpu", physics: Mapping[str, Any] | None = None) -> dict:
+def run_dam_break(
+    dx: float = 0.005,
+    a: float = MM_A,
+    sound_speed: float = 12.0,
+    T_end: float = 3.4,
+    sample_dt: float = 0.002,
+    arch: str = "cpu",
+    physics: Mapping[str, Any] | None = None,
+) -> dict:
     """Release a water column of width a and height 2a at the left tank wall.
 
     front_x is the furthest water within 0.1 a of the floor, measured from the starting wall;
     column_height is the highest water within one cell of that wall."""
-    cfg = _sim_config(physics, domain=(max(0.4, 6.0 * a), max(0.2, 3.0 * a)), dx=dx, dt=0.4 * dx / sound_speed,
-                      sound_speed=sound_speed, max_particles=int(1.2 * 2 * a * a * 4 / dx**2) + 16, arch=arch)
+    cfg = _sim_config(
+        physics,
+        domain=(max(0.4, 6.0 * a), max(0.2, 3.0 * a)),
+        dx=dx,
+        dt=0.4 * dx / sound_speed,
+        sound_speed=sound_speed,
+        max_particles=int(1.2 * 2 * a * a * 4 / dx**2) + 16,
+        arch=arch,
+    )
     w = cfg.wall
     solver = MPMSolver(cfg)
     solver.reset([EnvSpec(water=[WaterBlock((w, w), (w + a, w + 2 * a))])])
@@ -99,8 +121,17 @@ def run_dam_break(dx: float = 0.005, a: float = MM_A, sound_speed: float = 12.0,
     wall_s = time.perf_counter() - t0
     unstable = bool(solver.stability()["unstable"][0])
     solver.close()
-    return {"t": ts, "front_x": front, "column_height": height, "a": a, "g": G, "dx": dx,
-            "sound_speed": sound_speed, "wall_seconds": wall_s, "unstable": unstable}
+    return {
+        "t": ts,
+        "front_x": front,
+        "column_height": height,
+        "a": a,
+        "g": G,
+        "dx": dx,
+        "sound_speed": sound_speed,
+        "wall_seconds": wall_s,
+        "unstable": unstable,
+    }
 
 
 def dam_break_error(result: dict, data: np.ndarray | None = None, T_min: float = 0.8) -> float:
@@ -125,8 +156,11 @@ def plot_dam_break(results: list[dict], path: Path) -> None:
     ax.plot(data[:, 0], data[:, 1], "ko", label="Martin & Moyce 1952 (n²=2)")
     for r in results:
         T = np.asarray(r["t"]) * np.sqrt(2 * r["g"] / r["a"])
-        ax.plot(T, np.asarray(r["front_x"]) / r["a"], label=f"MLS-MPM dx={r['dx'] * 1000:g} mm "
-                f"(err {dam_break_error(r) * 100:.1f}%)")
+        ax.plot(
+            T,
+            np.asarray(r["front_x"]) / r["a"],
+            label=f"MLS-MPM dx={r['dx'] * 1000:g} mm (err {dam_break_error(r) * 100:.1f}%)",
+        )
     ax.set_xlabel("T = t sqrt(2g/a)")
     ax.set_ylabel("Z = x / a")
     ax.set_xlim(0, 3.5)
@@ -161,8 +195,13 @@ def fraction_in_cup(solver: MPMSolver, cup: CupGeometry, tol: float) -> np.ndarr
     return counts[:, 0] / solver.particle_counts()
 
 
-def run_rest(duration: float = 2.0, dx: float = 0.01, cup: CupGeometry | None = None, arch: str = "cpu",
-             physics: Mapping[str, Any] | None = None) -> dict:
+def run_rest(
+    duration: float = 2.0,
+    dx: float = 0.01,
+    cup: CupGeometry | None = None,
+    arch: str = "cpu",
+    physics: Mapping[str, Any] | None = None,
+) -> dict:
     """Water in a cup standing on the tank floor for ``duration`` s."""
     cup = cup or CupGeometry()
     cfg = _sim_config(physics, dx=dx, dt=0.4 * dx / 12.0, max_particles=2048, arch=arch)
@@ -196,8 +235,15 @@ def run_rest(duration: float = 2.0, dx: float = 0.01, cup: CupGeometry | None = 
     return out
 
 
-def run_leak(mode: str = "still", duration: float = 2.0, peak_speed: float = 0.3, dx: float = 0.01,
-             cup: CupGeometry | None = None, arch: str = "cpu", physics: Mapping[str, Any] | None = None) -> dict:
+def run_leak(
+    mode: str = "still",
+    duration: float = 2.0,
+    peak_speed: float = 0.3,
+    dx: float = 0.01,
+    cup: CupGeometry | None = None,
+    arch: str = "cpu",
+    physics: Mapping[str, Any] | None = None,
+) -> dict:
     """Fraction of water kept in the controlled cup, held still or carried at ``peak_speed``.
 
     'carried': a min-jerk carry right and up, then back, each leg at the given peak speed (the
@@ -217,23 +263,33 @@ def run_leak(mode: str = "still", duration: float = 2.0, peak_speed: float = 0.3
         for a, b in ((start, goal), (goal, start)):
             follow(solver, 0, lambda t, a=a, b=b: (a + (b - a) * min_jerk(t / T))[None], T)
         solver.advance(0.5)
-    out = {"mode": mode, "peak_speed_m_s": peak_speed if mode == "carried" else 0.0,
-           "fraction_kept": float(fraction_in_cup(solver, cup, 0.5 * dx)[0]),
-           "sim_seconds": solver.time, "unstable": bool(solver.stability()["unstable"][0])}
+    out = {
+        "mode": mode,
+        "peak_speed_m_s": peak_speed if mode == "carried" else 0.0,
+        "fraction_kept": float(fraction_in_cup(solver, cup, 0.5 * dx)[0]),
+        "sim_seconds": solver.time,
+        "unstable": bool(solver.stability()["unstable"][0]),
+    }
     solver.close()
     return out
 
 
 # ---------------------------------------------------------------------------------- CLI
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.validate", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks.validate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     sub = ap.add_subparsers(dest="case", required=True)
     d = sub.add_parser("dam-break", help="surge front against Martin & Moyce (1952)")
     d.add_argument("--out", type=Path, required=True)
     d.add_argument("--dx", type=float, default=0.005, help="grid spacing of the main run (m)")
-    d.add_argument("--resolutions", type=float, nargs="*", default=[0.01, 0.005, 0.0025],
-                   help="grid spacings of the resolution study (m)")
+    d.add_argument(
+        "--resolutions",
+        type=float,
+        nargs="*",
+        default=[0.01, 0.005, 0.0025],
+        help="grid spacings of the resolution study (m)",
+    )
     d.add_argument("--arch", default="cpu")
     r = sub.add_parser("rest", help="water at rest in a container")
     r.add_argument("--out", type=Path, required=True)
@@ -243,9 +299,12 @@ def main(argv: list[str] | None = None) -> None:
     lk.add_argument("--peak-speed", type=float, default=0.3)
     lk.add_argument("--arch", default="cpu")
     for sp in (d, r, lk):
-        sp.add_argument("--world", default="default",
-                        help="world YAML whose liquid model to run (default: configs/world/default.yaml; "
-                             "none: the solver's library defaults)")
+        sp.add_argument(
+            "--world",
+            default="default",
+            help="world YAML whose liquid model to run (default: configs/world/default.yaml; "
+            "none: the solver's library defaults)",
+        )
     args = ap.parse_args(argv)
     physics = world_physics(args.world)
     print(f"liquid model: {physics or 'solver library defaults'}")
@@ -256,8 +315,10 @@ def main(argv: list[str] | None = None) -> None:
         runs = {}
         for dx in dxs:
             runs[dx] = run_dam_break(dx=dx, arch=args.arch, physics=physics)
-            print(f"dx = {dx * 1000:6.2f} mm   mean |Z - Z_mm| / Z_mm = {dam_break_error(runs[dx]) * 100:5.1f} %"
-                  f"   wall {runs[dx]['wall_seconds']:.1f} s")
+            print(
+                f"dx = {dx * 1000:6.2f} mm   mean |Z - Z_mm| / Z_mm = {dam_break_error(runs[dx]) * 100:5.1f} %"
+                f"   wall {runs[dx]['wall_seconds']:.1f} s"
+            )
         main_run = dict(runs[args.dx])
         main_run["mean_relative_error"] = dam_break_error(main_run)
         main_run["tolerance"] = DAM_BREAK_TOLERANCE
@@ -271,9 +332,11 @@ def main(argv: list[str] | None = None) -> None:
         _atomic_json(args.out / "rest.json", res)
         print(json.dumps(res, indent=1))
     else:
-        res = {"still": run_leak("still", arch=args.arch, physics=physics),
-               "carried": run_leak("carried", peak_speed=args.peak_speed, arch=args.arch, physics=physics),
-               "physics": physics}
+        res = {
+            "still": run_leak("still", arch=args.arch, physics=physics),
+            "carried": run_leak("carried", peak_speed=args.peak_speed, arch=args.arch, physics=physics),
+            "physics": physics,
+        }
         _atomic_json(args.out / "leaks.json", res)
         print(json.dumps(res, indent=1))
 

@@ -19,6 +19,8 @@ def path(*parts: str) -> Path:
     Raises ``FileNotFoundError`` naming what exists when ``parts`` name nothing (a broken install)."""
     p = CONFIG_DIR.joinpath(*parts)
     if not p.exists():
-        raise FileNotFoundError(f"no config {'/'.join(parts)} under {CONFIG_DIR} "
-                                f"(has: {sorted(q.name for q in CONFIG_DIR.iterdir() if not q.name.startswith('_'))})")
+        raise FileNotFoundError(
+            f"no config {'/'.join(parts)} under {CONFIG_DIR} "
+            f"(has: {sorted(q.name for q in CONFIG_DIR.iterdir() if not q.name.startswith('_'))})"
+        )
     return p

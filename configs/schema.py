@@ -127,8 +127,11 @@ def number(gt: float | None = None, ge: float | None = None, lt: float | None = 
         allowed = f"{'<' if lt is not None else '<='} {high[:-1]} (a finite number)"
     else:
         allowed = "a finite number"
-    return _leaf(float, Rule(allowed, gt=gt, ge=ge, lt=lt, le=le),
-                 Field(strict=True, allow_inf_nan=False, gt=gt, ge=ge, lt=lt, le=le))
+    return _leaf(
+        float,
+        Rule(allowed, gt=gt, ge=ge, lt=lt, le=le),
+        Field(strict=True, allow_inf_nan=False, gt=gt, ge=ge, lt=lt, le=le),
+    )
 
 
 def integer(ge: int | None = None, le: int | None = None) -> Any:
@@ -167,8 +170,9 @@ _DOTTED = r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)+$"
 
 def dotted() -> Any:
     """An importable name, e.g. ``active.acquisition.DiscountedMaxUCB`` (whether it imports is checked by its user)."""
-    return _leaf(str, Rule("a dotted import path, e.g. active.acquisition.DiscountedMaxUCB"),
-                 Field(strict=True, pattern=_DOTTED))
+    return _leaf(
+        str, Rule("a dotted import path, e.g. active.acquisition.DiscountedMaxUCB"), Field(strict=True, pattern=_DOTTED)
+    )
 
 
 def _rule_of(t: Any) -> Rule:
@@ -182,14 +186,22 @@ def nullable(t: Any) -> Any:
     return Annotated[Optional[t], rule, _say(rule)]
 
 
-def listing(elem: Any, length: int | None = None, min_length: int | None = None, allowed: str | None = None,
-            check: Any = None) -> Any:
+def listing(
+    elem: Any, length: int | None = None, min_length: int | None = None, allowed: str | None = None, check: Any = None
+) -> Any:
     """A list of ``elem``; each element is validated (and named: ``path[i]``) on its own."""
     what = _rule_of(elem).allowed
     rule = Rule(allowed or f"a list of {length if length else f'at least {min_length or 0}'}, each {what}")
     extra = [AfterValidator(check)] if check else []
-    return Annotated[(list[elem], Field(min_length=length or min_length, max_length=length), *extra, rule,
-                      _say(rule, list_level=True))]
+    return Annotated[
+        (
+            list[elem],
+            Field(min_length=length or min_length, max_length=length),
+            *extra,
+            rule,
+            _say(rule, list_level=True),
+        )
+    ]
 
 
 def _ordered(v: list) -> list:
@@ -201,8 +213,9 @@ def _ordered(v: list) -> list:
 def pair(elem: Any = None) -> Any:
     """A ``[low, high]`` range with low <= high."""
     elem = elem if elem is not None else number()
-    return listing(elem, length=2, check=_ordered,
-                   allowed=f"a [low, high] pair with low <= high, each {_rule_of(elem).allowed}")
+    return listing(
+        elem, length=2, check=_ordered, allowed=f"a [low, high] pair with low <= high, each {_rule_of(elem).allowed}"
+    )
 
 
 # ------------------------------------------------------------------------------------------------ groups
@@ -214,8 +227,9 @@ class Group(BaseModel):
 
 
 def _error(loc: tuple, value: Any, message: str) -> InitErrorDetails:
-    return InitErrorDetails(type=PydanticCustomError("config_key", "{message}", {"message": message}),
-                            loc=loc, input=value)
+    return InitErrorDetails(
+        type=PydanticCustomError("config_key", "{message}", {"message": message}), loc=loc, input=value
+    )
 
 
 def _raise(title: str, errors: list[InitErrorDetails]) -> None:
@@ -285,8 +299,10 @@ class Plant(Group):
     stem_x: number()
     stem_height: number(gt=0)
     stem_radius: number(gt=0)
-    leaves: listing(Annotated[Leaf, Rule("a leaf {center: [x, y], radii: [a, b], angle}")],
-                    allowed="a list of leaves, each {center: [x, y], radii: [a, b], angle}")
+    leaves: listing(
+        Annotated[Leaf, Rule("a leaf {center: [x, y], radii: [a, b], angle}")],
+        allowed="a list of leaves, each {center: [x, y], radii: [a, b], angle}",
+    )
     jitter_xy: number(ge=0)
     jitter_tilt: number(ge=0)
     on_contact: one_of(*PLANT_CONTACT) = None
@@ -334,8 +350,10 @@ class DistanceWeights(Group):
     @model_validator(mode="after")
     def _not_all_zero(self) -> "DistanceWeights":
         if not (self.pose > 0 or self.volume > 0):
-            _raise("distance_weights", [_error((), {"pose": self.pose, "volume": self.volume},
-                                               "allowed weights >= 0, not both 0")])
+            _raise(
+                "distance_weights",
+                [_error((), {"pose": self.pose, "volume": self.volume}, "allowed weights >= 0, not both 0")],
+            )
         return self
 
 
@@ -469,24 +487,30 @@ class Planner(Group):
     batch_min: integer(ge=1) = None
     batch_max: integer(ge=1) = None
     last_step_proposals: integer(ge=1) = None
-    distance_weights: listing(number(ge=0), length=4, check=_some_weight,
-                               allowed="4 finite numbers >= 0, not all 0") = None
+    distance_weights: listing(
+        number(ge=0), length=4, check=_some_weight, allowed="4 finite numbers >= 0, not all 0"
+    ) = None
     clip_to_bounds: flag() = None
     prune_dead_states: flag() = None
     stuck_tilt: number(gt=0) = None
     stuck_move: number(gt=0) = None
     torch_threads: integer(ge=0) = None
     ompl_log_level: one_of(*OMPL_LOG_LEVELS) = None
-    workers: Annotated[Union[integer(ge=1), Literal["auto"]],
-                       Rule("an integer >= 1 (1 = plan in the main process) or 'auto'", ge=1, integer=True),
-                       _say(Rule("an integer >= 1 (1 = plan in the main process) or 'auto'"))] = None
+    workers: Annotated[
+        Union[integer(ge=1), Literal["auto"]],
+        Rule("an integer >= 1 (1 = plan in the main process) or 'auto'", ge=1, integer=True),
+        _say(Rule("an integer >= 1 (1 = plan in the main process) or 'auto'")),
+    ] = None
 
     @model_validator(mode="after")
     def _ordered(self) -> "Planner":
         errors = []
         if self.state_low is not None and self.state_high is not None:
-            errors += [_error(("state_high", i), hi, f"allowed >= state_low[{i}] = {lo!r}")
-                       for i, (lo, hi) in enumerate(zip(self.state_low, self.state_high)) if hi < lo]
+            errors += [
+                _error(("state_high", i), hi, f"allowed >= state_low[{i}] = {lo!r}")
+                for i, (lo, hi) in enumerate(zip(self.state_low, self.state_high))
+                if hi < lo
+            ]
         if self.batch_min is not None and self.batch_max is not None and self.batch_max < self.batch_min:
             errors.append(_error(("batch_max",), self.batch_max, f"allowed an integer >= batch_min = {self.batch_min}"))
         _raise("planner", errors)
@@ -532,7 +556,7 @@ class AcquisitionArgs(Group):
     c: number() = None
     gamma: number(gt=0, le=1) = None
     kappa: number(ge=0) = None
-    seed: integer(ge=-2**63, le=2**63 - 1) = None  # hashed as 8 signed bytes (TrajectoryThompson)
+    seed: integer(ge=-(2**63), le=2**63 - 1) = None  # hashed as 8 signed bytes (TrajectoryThompson)
     d_max: number(gt=0) = None
     beta: number() = None
     observation_noise: flag() = None
@@ -548,11 +572,23 @@ class AcquisitionArgs(Group):
         given = self.given()
         if self.target in ACQUISITION_PARAMS:
             allowed = sorted((*SPEC_KEYS, *ACQUISITION_PARAMS[self.target]))
-            _raise("acquisition", [_error((k,), v, f"not a parameter of {self.target}; allowed keys: {allowed}")
-                                   for k, v in given.items() if k not in allowed])
+            _raise(
+                "acquisition",
+                [
+                    _error((k,), v, f"not a parameter of {self.target}; allowed keys: {allowed}")
+                    for k, v in given.items()
+                    if k not in allowed
+                ],
+            )
         elif self.target is not None:
-            _raise("acquisition", [_error((k, *loc), v, "allowed a finite number")
-                                   for k, v in (self.model_extra or {}).items() for loc, v in _non_finite(v)])
+            _raise(
+                "acquisition",
+                [
+                    _error((k, *loc), v, "allowed a finite number")
+                    for k, v in (self.model_extra or {}).items()
+                    for loc, v in _non_finite(v)
+                ],
+            )
         return self
 
 
@@ -572,16 +608,34 @@ class Method(Group):
 
     @model_validator(mode="after")
     def _parameters(self) -> "Method":
-        given = {"_target_": self.target, **({"acquisition": self.acquisition} if "acquisition" in
-                                             self.model_fields_set else {}), **(self.model_extra or {})}
+        given = {
+            "_target_": self.target,
+            **({"acquisition": self.acquisition} if "acquisition" in self.model_fields_set else {}),
+            **(self.model_extra or {}),
+        }
         if self.target in METHOD_PARAMS:
             allowed = sorted(("_target_", *METHOD_PARAMS[self.target]))
-            _raise("method", [_error((k,), v.given() if isinstance(v, AcquisitionArgs) else v,
-                                     f"not a parameter of {self.target}; allowed keys: {allowed}")
-                              for k, v in given.items() if k not in allowed])
+            _raise(
+                "method",
+                [
+                    _error(
+                        (k,),
+                        v.given() if isinstance(v, AcquisitionArgs) else v,
+                        f"not a parameter of {self.target}; allowed keys: {allowed}",
+                    )
+                    for k, v in given.items()
+                    if k not in allowed
+                ],
+            )
         else:
-            _raise("method", [_error((k, *loc), v, "allowed a finite number")
-                              for k, v in (self.model_extra or {}).items() for loc, v in _non_finite(v)])
+            _raise(
+                "method",
+                [
+                    _error((k, *loc), v, "allowed a finite number")
+                    for k, v in (self.model_extra or {}).items()
+                    for loc, v in _non_finite(v)
+                ],
+            )
         return self
 
 
@@ -613,9 +667,12 @@ class RunConfig(Group):
     wandb: Wandb = None
     method: text() = "all"  # "all" or a name in methods: (checked below)
     seed: seed_value()
-    seeds: Annotated[Optional[listing(seed_value(), min_length=1, allowed=_SEEDS_ALLOWED)],
-                     Rule(f"{_SEEDS_ALLOWED}", ge=0, le=MAX_SEED, integer=True), _say(Rule(_SEEDS_ALLOWED), True),
-                     AfterValidator(_seeds_unique)] = None
+    seeds: Annotated[
+        Optional[listing(seed_value(), min_length=1, allowed=_SEEDS_ALLOWED)],
+        Rule(f"{_SEEDS_ALLOWED}", ge=0, le=MAX_SEED, integer=True),
+        _say(Rule(_SEEDS_ALLOWED), True),
+        AfterValidator(_seeds_unique),
+    ] = None
     runner: one_of(*RUNNERS) = None
     progress: flag() = None
 
@@ -625,10 +682,19 @@ class RunConfig(Group):
         names = sorted(self.methods)
         errors = []
         if self.method != "all" and self.method not in self.methods:
-            errors.append(_error(("method",), self.method, f"allowed one of {names + ['all']} (a name in the "
-                                                           "methods: node, configs/methods/default.yaml, or all)"))
-        errors += [_error(("experiment", "methods", i), m, f"allowed one of {names} (the methods: node)")
-                   for i, m in enumerate(self.experiment.methods or ()) if m not in self.methods]
+            errors.append(
+                _error(
+                    ("method",),
+                    self.method,
+                    f"allowed one of {names + ['all']} (a name in the "
+                    "methods: node, configs/methods/default.yaml, or all)",
+                )
+            )
+        errors += [
+            _error(("experiment", "methods", i), m, f"allowed one of {names} (the methods: node)")
+            for i, m in enumerate(self.experiment.methods or ())
+            if m not in self.methods
+        ]
         built_in = sorted({k for ks in ACQUISITION_PARAMS.values() for k in ks})
         configured = self.acquisition.target
         for name, spec in self.methods.items():
@@ -662,8 +728,9 @@ def check_config(cfg: Mapping[str, Any]) -> Mapping[str, Any]:
 def _plain(v: Any) -> Any:
     if isinstance(v, Mapping):
         return {k: _plain(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)) or (hasattr(v, "__iter__") and hasattr(v, "__len__")
-                                        and not isinstance(v, (str, bytes, Mapping))):
+    if isinstance(v, (list, tuple)) or (
+        hasattr(v, "__iter__") and hasattr(v, "__len__") and not isinstance(v, (str, bytes, Mapping))
+    ):
         return [_plain(x) for x in v]
     return v
 

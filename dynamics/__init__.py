@@ -31,8 +31,15 @@ from .data import Transitions, generate_source_dataset, generate_transitions
 from .model import LearnedDynamics
 
 # imported lazily so that `python -m dynamics.train` does not find its own module pre-imported
-_LAZY = {"ContactAwareDynamics": "contact", "DynamicsEnsemble": "ensemble", "cache_paths": "train",
-         "error_table": "train", "fit": "train", "load_or_generate_dataset": "train", "load_or_train": "train"}
+_LAZY = {
+    "ContactAwareDynamics": "contact",
+    "DynamicsEnsemble": "ensemble",
+    "cache_paths": "train",
+    "error_table": "train",
+    "fit": "train",
+    "load_or_generate_dataset": "train",
+    "load_or_train": "train",
+}
 
 
 def __getattr__(name: str):
@@ -42,8 +49,23 @@ def __getattr__(name: str):
 
 
 __all__ = [
-    "ContactAwareDynamics", "DataConfig", "DynamicsConfig", "DynamicsEnsemble", "DynamicsError", "EvalConfig",
-    "LearnedDynamics", "ModelConfig", "TrainConfig",
-    "Transitions", "cache_paths", "data_hash", "error_table", "fit", "generate_source_dataset",
-    "generate_transitions", "load_or_generate_dataset", "load_or_train", "model_hash",
+    "ContactAwareDynamics",
+    "DataConfig",
+    "DynamicsConfig",
+    "DynamicsEnsemble",
+    "DynamicsError",
+    "EvalConfig",
+    "LearnedDynamics",
+    "ModelConfig",
+    "TrainConfig",
+    "Transitions",
+    "cache_paths",
+    "data_hash",
+    "error_table",
+    "fit",
+    "generate_source_dataset",
+    "generate_transitions",
+    "load_or_generate_dataset",
+    "load_or_train",
+    "model_hash",
 ]

@@ -135,8 +135,16 @@ class DataConfig:
         if not float(self.max_sim_seconds) > 0:
             raise DynamicsError(f"data.max_sim_seconds = {self.max_sim_seconds}: allowed > 0 s")
         s("max_sim_seconds", float(self.max_sim_seconds))
-        for k in ("p_problem_start", "p_pour", "p_pour_after_pour", "p_near_target", "p_pour_after_near",
-                  "p_theta_focus", "p_keep_stuck", "p_keep_stuck_pour"):
+        for k in (
+            "p_problem_start",
+            "p_pour",
+            "p_pour_after_pour",
+            "p_near_target",
+            "p_pour_after_near",
+            "p_theta_focus",
+            "p_keep_stuck",
+            "p_keep_stuck_pour",
+        ):
             s(k, _prob(f"data.{k}", getattr(self, k)))
         s("near_target_dx", _range("data.near_target_dx", self.near_target_dx))
         s("near_target_y", _range("data.near_target_y", self.near_target_y))
@@ -379,8 +387,14 @@ def plant_dict(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
 def model_hash(cfg: DynamicsConfig, dhash: str | None = None, world_cfg: Any = None) -> str:
     """Identity of a checkpoint: a digest of the format version, the dataset's identity and every model and
     training field."""
-    return _digest({"format": MODEL_FORMAT_VERSION, "data": dhash or data_hash(cfg, world_cfg),
-                    "model": _plain(cfg.model), "train": _plain(cfg.train)})
+    return _digest(
+        {
+            "format": MODEL_FORMAT_VERSION,
+            "data": dhash or data_hash(cfg, world_cfg),
+            "model": _plain(cfg.model),
+            "train": _plain(cfg.train),
+        }
+    )
 
 
 def ensemble_member(cfg: DynamicsConfig, k: int) -> DynamicsConfig:
@@ -390,8 +404,11 @@ def ensemble_member(cfg: DynamicsConfig, k: int) -> DynamicsConfig:
     n = cfg.model.ensemble
     if not 0 <= k < n:
         raise DynamicsError(f"ensemble member {k}: allowed 0..{n - 1} (model.ensemble = {n})")
-    return dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, ensemble=1),
-                               train=dataclasses.replace(cfg.train, seed=cfg.train.seed * n + k))
+    return dataclasses.replace(
+        cfg,
+        model=dataclasses.replace(cfg.model, ensemble=1),
+        train=dataclasses.replace(cfg.train, seed=cfg.train.seed * n + k),
+    )
 
 
 def single_models(cfg: DynamicsConfig) -> list[DynamicsConfig]:

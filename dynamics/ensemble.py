@@ -81,15 +81,23 @@ class DynamicsEnsemble(nn.Module):
         acts = {m.cfg.activation for m in self.members}
         for k in (MOVE, POUR):
             ws = [w[k] for w in own]
-            same = len(acts) == 1 and all(w["geom"] == ws[0]["geom"] and len(w["W"]) == len(ws[0]["W"])
-                                          and all(x.shape == y.shape for x, y in zip(w["W"], ws[0]["W"])) for w in ws)
+            same = len(acts) == 1 and all(
+                w["geom"] == ws[0]["geom"]
+                and len(w["W"]) == len(ws[0]["W"])
+                and all(x.shape == y.shape for x, y in zip(w["W"], ws[0]["W"]))
+                for w in ws
+            )
             if not same:
                 stacked = None
                 break
-            stacked.append({**ws[0],
-                            "W": [np.stack([w["W"][i] for w in ws]) for i in range(len(ws[0]["W"]))],
-                            "b": [np.stack([w["b"][i] for w in ws])[:, None, :] for i in range(len(ws[0]["b"]))],
-                            "pose_scale": np.stack([w["pose_scale"] for w in ws])[:, None, :]})
+            stacked.append(
+                {
+                    **ws[0],
+                    "W": [np.stack([w["W"][i] for w in ws]) for i in range(len(ws[0]["W"]))],
+                    "b": [np.stack([w["b"][i] for w in ws])[:, None, :] for i in range(len(ws[0]["b"]))],
+                    "pose_scale": np.stack([w["pose_scale"] for w in ws])[:, None, :],
+                }
+            )
         self._np = (own, stacked)
         return stacked
 

@@ -55,12 +55,20 @@ def compose_config(config_name: str = "default", overrides: list[str] | None = N
         return DynamicsConfig.from_dict(compose(config_name=config_name, overrides=list(overrides or [])))
 
 
-def eval_sets(cfg: DynamicsConfig, cache_root: str | Path | None = None, world_cfg: Any = None
-              ) -> dict[str, Transitions]:
+def eval_sets(
+    cfg: DynamicsConfig, cache_root: str | Path | None = None, world_cfg: Any = None
+) -> dict[str, Transitions]:
     """Fresh source- and target-world transition sets (cached by data hash + eval seed and sizes)."""
     root = cache_paths(cfg, cache_root, world_cfg)["root"]
-    key = _digest({"data": data_hash(cfg, world_cfg), "plant": plant_dict(cfg.data, world_cfg), "seed": cfg.eval.seed,
-                   "source": cfg.eval.source_batches, "target": cfg.eval.target_batches})
+    key = _digest(
+        {
+            "data": data_hash(cfg, world_cfg),
+            "plant": plant_dict(cfg.data, world_cfg),
+            "seed": cfg.eval.seed,
+            "source": cfg.eval.source_batches,
+            "target": cfg.eval.target_batches,
+        }
+    )
     folder = root / f"eval-{key}"
     out = {}
     for world, n in (("source", cfg.eval.source_batches), ("target", cfg.eval.target_batches)):
@@ -71,9 +79,17 @@ def eval_sets(cfg: DynamicsConfig, cache_root: str | Path | None = None, world_c
             safeio.remove_orphans(folder)  # left by a writer killed mid-write
             if not path.is_file():
                 # natural distribution in evaluation: keep every stuck sequence
-                ds = generate_transitions(cfg.data, world, n_batches=n, seed=cfg.eval.seed, keep_all_stuck=True,
-                                          progress=cfg.progress, shard_dir=folder / f"parts-{world}",
-                                          meta={"eval_key": key}, world_cfg=world_cfg)
+                ds = generate_transitions(
+                    cfg.data,
+                    world,
+                    n_batches=n,
+                    seed=cfg.eval.seed,
+                    keep_all_stuck=True,
+                    progress=cfg.progress,
+                    shard_dir=folder / f"parts-{world}",
+                    meta={"eval_key": key},
+                    world_cfg=world_cfg,
+                )
                 ds.save(path)
             shutil.rmtree(folder / f"parts-{world}", ignore_errors=True)  # also after a kill right after saving
         out[world] = Transitions.load(path)
@@ -104,8 +120,12 @@ def evaluate(cfg: DynamicsConfig, cache_root: str | Path | None = None, world_cf
         pred = model.predict_np(tgt.s, tgt.a)
         err = np.abs(pred - tgt.s_next)
         d = w["pose"] * np.linalg.norm(pred[:, :3] - tgt.s_next[:, :3], axis=1) + w["volume"] * (err[:, 3] + err[:, 4])
-        scatter = {"clearance": clearance.tolist(), "d": d.tolist(), "skill": tgt.skill().tolist(),
-                   "stuck": tgt.stuck.astype(bool).tolist()}
+        scatter = {
+            "clearance": clearance.tolist(),
+            "d": d.tolist(),
+            "skill": tgt.skill().tolist(),
+            "stuck": tgt.stuck.astype(bool).tolist(),
+        }
     tables = {}
     for name, ds in groups.items():
         if len(ds) == 0:
@@ -114,23 +134,34 @@ def evaluate(cfg: DynamicsConfig, cache_root: str | Path | None = None, world_cf
         pred = model.predict_np(ds.s, ds.a)
         tables[name] = _errors(pred, ds.s_next.astype(float), ds.skill(), w)
         tables[name]["all"]["stuck"] = int(ds.stuck.sum())
-    return {"model_hash": model.info.get("model_hash"), "data_hash": model.info.get("data_hash"),
-            "training": {k: v for k, v in model.info.get("training", {}).items() if k not in ("history", "val_errors")},
-            "dataset": model.info.get("dataset"),
-            "eval_sets": {k: {**v.summary(), "wall_seconds": v.meta.get("wall_seconds"),
-                              "categories": v.meta.get("counts", {}).get("categories")} for k, v in sets.items()},
-            "groups": tables, "target_scatter": scatter, "config": cfg.to_dict(),
-            "definitions": {
-                "mae_*": "mean |f_hat(s,a) - s'| per state component (m, m, rad, fraction, fraction)",
-                "d": "task.state_distance(f_hat(s,a), s') with the world's distance weights",
-                "frac_d_gt_0.07": "share of transitions with d > 0.07 (the paper's d_max)",
-                "near": f"plant within {cfg.eval.near_radius} m of the cup outline along the action's executed "
-                        "path or, for a pour, of the water's fall region (between the vertical below the pouring "
-                        f"lip and the ballistic path of water leaving it at {cfg.eval.stream_speed} m/s towards -x)",
-                "source_val": "validation split (whole held-out trajectories) of the training data; "
-                              "for an ensemble, the trajectories every member held out",
-                "source_test": f"fresh source-world trajectories, seed {cfg.eval.seed}",
-            }}
+    return {
+        "model_hash": model.info.get("model_hash"),
+        "data_hash": model.info.get("data_hash"),
+        "training": {k: v for k, v in model.info.get("training", {}).items() if k not in ("history", "val_errors")},
+        "dataset": model.info.get("dataset"),
+        "eval_sets": {
+            k: {
+                **v.summary(),
+                "wall_seconds": v.meta.get("wall_seconds"),
+                "categories": v.meta.get("counts", {}).get("categories"),
+            }
+            for k, v in sets.items()
+        },
+        "groups": tables,
+        "target_scatter": scatter,
+        "config": cfg.to_dict(),
+        "definitions": {
+            "mae_*": "mean |f_hat(s,a) - s'| per state component (m, m, rad, fraction, fraction)",
+            "d": "task.state_distance(f_hat(s,a), s') with the world's distance weights",
+            "frac_d_gt_0.07": "share of transitions with d > 0.07 (the paper's d_max)",
+            "near": f"plant within {cfg.eval.near_radius} m of the cup outline along the action's executed "
+            "path or, for a pour, of the water's fall region (between the vertical below the pouring "
+            f"lip and the ballistic path of water leaving it at {cfg.eval.stream_speed} m/s towards -x)",
+            "source_val": "validation split (whole held-out trajectories) of the training data; "
+            "for an ensemble, the trajectories every member held out",
+            "source_test": f"fresh source-world trajectories, seed {cfg.eval.seed}",
+        },
+    }
 
 
 def plot(result: dict[str, Any], path: Path) -> None:
@@ -181,8 +212,9 @@ def plot(result: dict[str, Any], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    ap = argparse.ArgumentParser(prog="python -m dynamics.evaluate", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m dynamics.evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--out", required=True, help="output folder for dynamics_eval.json / .png")
     ap.add_argument("--config-name", default="default", help="config in configs/dynamics (default: default)")
     ap.add_argument("overrides", nargs="*", help="Hydra-style overrides, e.g. data.n_batches=4 eval.target_batches=2")

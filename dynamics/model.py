@@ -105,8 +105,9 @@ def pour_sweep_np(s: np.ndarray, theta: np.ndarray, geom: Sequence[float]) -> np
     return np.stack([X.min((1, 2)), X.max((1, 2)), Y.min((1, 2)), Y.max((1, 2))], 1)
 
 
-def skill_features(skill: int, s: Tensor, p: Tensor, geom: Tensor | None = None,
-                   consts: Tensor | None = None) -> Tensor:
+def skill_features(
+    skill: int, s: Tensor, p: Tensor, geom: Tensor | None = None, consts: Tensor | None = None
+) -> Tensor:
     """Network inputs of one skill (before z-scoring); see ``FEATURE_DIMS``."""
     if skill == MOVE:
         return torch.cat([s, p, p - s[:, :2]], 1)
@@ -141,7 +142,11 @@ def _silu_inplace(h: np.ndarray) -> None:
 
 #: the same arithmetic as ``_ACT_NP``, in place: the batch path's layers are [M, n, 128] arrays, and
 #: allocating two temporaries per layer costs up to a quarter of its time at n = 256
-_ACT_NP_INPLACE = {"silu": _silu_inplace, "tanh": lambda h: np.tanh(h, out=h), "relu": lambda h: np.maximum(h, 0.0, out=h)}
+_ACT_NP_INPLACE = {
+    "silu": _silu_inplace,
+    "tanh": lambda h: np.tanh(h, out=h),
+    "relu": lambda h: np.maximum(h, 0.0, out=h),
+}
 _SWEEP_FRACTIONS = np.linspace(0.0, 1.0, SWEEP_STEPS)
 
 
@@ -312,18 +317,22 @@ class LearnedDynamics(nn.Module):
         bad = ((sk - r).abs() > 1e-4) | ((r != MOVE) & (r != POUR))
         if bad.any():
             i = int(bad.nonzero()[0])
-            raise DynamicsError(f"dynamics.predict: action {i} has skill id {float(sk[i]):g}; "
-                                "allowed 0 (move) or 1 (pour)")
+            raise DynamicsError(
+                f"dynamics.predict: action {i} has skill id {float(sk[i]):g}; allowed 0 (move) or 1 (pour)"
+            )
         return self.forward(s, a)
 
     @staticmethod
     def _check(s_shape: Sequence[int], a_shape: Sequence[int]) -> None:
         if len(s_shape) != 2 or s_shape[1] != STATE_DIM:
-            raise DynamicsError(f"dynamics.predict: states must have shape [n, {STATE_DIM}] (x, y, theta, v_ctrl, "
-                                f"v_tgt), got {tuple(s_shape)}")
+            raise DynamicsError(
+                f"dynamics.predict: states must have shape [n, {STATE_DIM}] (x, y, theta, v_ctrl, "
+                f"v_tgt), got {tuple(s_shape)}"
+            )
         if len(a_shape) != 2 or a_shape[1] != ACTION_DIM:
-            raise DynamicsError(f"dynamics.predict: actions must have shape [n, {ACTION_DIM}] (skill_id, p1, p2), "
-                                f"got {tuple(a_shape)}")
+            raise DynamicsError(
+                f"dynamics.predict: actions must have shape [n, {ACTION_DIM}] (skill_id, p1, p2), got {tuple(a_shape)}"
+            )
         if s_shape[0] != a_shape[0]:
             raise DynamicsError(f"dynamics.predict: {s_shape[0]} states but {a_shape[0]} actions")
 
@@ -341,9 +350,17 @@ class LearnedDynamics(nn.Module):
                 W[0] = W[0] / std[:, None]
                 lx, ly, cx, cy = _sweep_geometry(net.cup_geom.tolist())
                 rx, ry = np.asarray(cx) - lx, np.asarray(cy) - ly
-                nets.append({"W": W, "b": b, "pose_scale": net.pose_scale.double().numpy().copy(),
-                             "geom": net.cup_geom.tolist(), "lip": (lx, ly), "radius": np.hypot(rx, ry)[:, None],
-                             "angle": np.arctan2(ry, rx)[:, None]})
+                nets.append(
+                    {
+                        "W": W,
+                        "b": b,
+                        "pose_scale": net.pose_scale.double().numpy().copy(),
+                        "geom": net.cup_geom.tolist(),
+                        "lip": (lx, ly),
+                        "radius": np.hypot(rx, ry)[:, None],
+                        "angle": np.arctan2(ry, rx)[:, None],
+                    }
+                )
             self._np = nets
         return self._np
 
@@ -382,8 +399,10 @@ class LearnedDynamics(nn.Module):
         s = np.asarray(state, float).reshape(-1)
         a = np.asarray(action, float).reshape(-1)
         if s.shape != (STATE_DIM,) or a.shape != (ACTION_DIM,):
-            raise DynamicsError(f"dynamics.predict_one: expected a state of {STATE_DIM} and an action of "
-                                f"{ACTION_DIM} numbers, got shapes {np.shape(state)} and {np.shape(action)}")
+            raise DynamicsError(
+                f"dynamics.predict_one: expected a state of {STATE_DIM} and an action of "
+                f"{ACTION_DIM} numbers, got shapes {np.shape(state)} and {np.shape(action)}"
+            )
         x, y, th, vc, vt = (float(v) for v in s)
         kf, p1, p2 = (float(v) for v in a)
         if not all(map(math.isfinite, (x, y, th, vc, vt, kf, p1, p2))):
@@ -424,12 +443,20 @@ class LearnedDynamics(nn.Module):
         """Atomic checkpoint: format tag, model config, ``info`` (config, hashes, metrics), weights + statistics."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        payload = {"format": CHECKPOINT_FORMAT, "version": MODEL_FORMAT_VERSION,
-                   "model_config": json.dumps({"hidden": list(self.cfg.hidden), "activation": self.cfg.activation,
-                                               "min_pose_scale": self.cfg.min_pose_scale,
-                                               "min_fraction_scale": self.cfg.min_fraction_scale}),
-                   "info": json.dumps(self.info, default=safeio.json_default),
-                   "state_dict": {k: v.detach().clone() for k, v in self.state_dict().items()}}
+        payload = {
+            "format": CHECKPOINT_FORMAT,
+            "version": MODEL_FORMAT_VERSION,
+            "model_config": json.dumps(
+                {
+                    "hidden": list(self.cfg.hidden),
+                    "activation": self.cfg.activation,
+                    "min_pose_scale": self.cfg.min_pose_scale,
+                    "min_fraction_scale": self.cfg.min_fraction_scale,
+                }
+            ),
+            "info": json.dumps(self.info, default=safeio.json_default),
+            "state_dict": {k: v.detach().clone() for k, v in self.state_dict().items()},
+        }
         atomic_torch_save(payload, path)
         return path
 
@@ -444,10 +471,13 @@ class LearnedDynamics(nn.Module):
             model = cls(mcfg, info)
             model.load_state_dict(payload["state_dict"], strict=True)
         except (KeyError, TypeError, ValueError, RuntimeError, json.JSONDecodeError) as e:
-            raise DynamicsError(f"dynamics checkpoint {path} does not match this model code "
-                                f"({type(e).__name__}: {str(e)[:300]}); {fix}") from None
+            raise DynamicsError(
+                f"dynamics checkpoint {path} does not match this model code ({type(e).__name__}: {str(e)[:300]}); {fix}"
+            ) from None
         if expected_hash is not None and info.get("model_hash") != expected_hash:
-            raise DynamicsError(f"dynamics checkpoint {path} was trained with another config (hash "
-                                f"{info.get('model_hash')}, expected {expected_hash}); {fix}")
+            raise DynamicsError(
+                f"dynamics checkpoint {path} was trained with another config (hash "
+                f"{info.get('model_hash')}, expected {expected_hash}); {fix}"
+            )
         model.eval()
         return model

@@ -64,8 +64,9 @@ def check(c: DynamicsConfig) -> bool:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m dynamics.shipped", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m dynamics.shipped", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--check", action="store_true", help="only report whether the shipped files match")
     ap.add_argument("overrides", nargs="*", help="Hydra overrides of configs/dynamics/default.yaml (default: none)")
     args = ap.parse_args(argv)

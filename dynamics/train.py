@@ -80,8 +80,13 @@ def split_by_trajectory(traj: np.ndarray, val_fraction: float, seed: int) -> tup
     return np.flatnonzero(~val), np.flatnonzero(val)
 
 
-def fit(ds: Transitions, model_cfg: ModelConfig | None = None, train_cfg: TrainConfig | None = None,
-        progress: bool = False, world_cfg: Any = None) -> LearnedDynamics:
+def fit(
+    ds: Transitions,
+    model_cfg: ModelConfig | None = None,
+    train_cfg: TrainConfig | None = None,
+    progress: bool = False,
+    world_cfg: Any = None,
+) -> LearnedDynamics:
     """Train a fresh :class:`LearnedDynamics` on ``ds``; seeded and bit-reproducible on CPU.
 
     ``world_cfg`` (``sim.world.WorldConfig`` or mapping; default: the default world) gives the
@@ -96,8 +101,10 @@ def fit(ds: Transitions, model_cfg: ModelConfig | None = None, train_cfg: TrainC
     mc, tc = model_cfg or ModelConfig(), train_cfg or TrainConfig()
     ds.validate()
     if len(ds) < 2:
-        raise DynamicsError(f"cannot train the dynamics model on {len(ds)} transition(s); generate more data "
-                            f"(data.n_batches) with `{TRAIN_COMMAND}`")
+        raise DynamicsError(
+            f"cannot train the dynamics model on {len(ds)} transition(s); generate more data "
+            f"(data.n_batches) with `{TRAIN_COMMAND}`"
+        )
     t0 = time.perf_counter()
     tr_idx, va_idx = split_by_trajectory(ds.traj, tc.val_fraction, tc.seed)
     skill = ds.skill()
@@ -117,8 +124,9 @@ def fit(ds: Transitions, model_cfg: ModelConfig | None = None, train_cfg: TrainC
         S, A, SN = (torch.from_numpy(np.ascontiguousarray(x)) for x in (ds.s, ds.a, ds.s_next))
         tr, va = torch.from_numpy(tr_idx), torch.from_numpy(va_idx)
         opt = torch.optim.Adam(model.parameters(), lr=tc.lr, weight_decay=tc.weight_decay)
-        sched = (torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=tc.max_epochs)
-                 if tc.lr_schedule == "cosine" else None)
+        sched = (
+            torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=tc.max_epochs) if tc.lr_schedule == "cosine" else None
+        )
         gen = torch.Generator().manual_seed(tc.seed)
 
         def loss_of(idx: torch.Tensor) -> torch.Tensor:
@@ -136,7 +144,7 @@ def fit(ds: Transitions, model_cfg: ModelConfig | None = None, train_cfg: TrainC
             perm = tr[torch.randperm(len(tr), generator=gen)]
             total = 0.0
             for i in range(0, len(perm), tc.batch_size):
-                idx = perm[i:i + tc.batch_size]
+                idx = perm[i : i + tc.batch_size]
                 loss = loss_of(idx)
                 opt.zero_grad()
                 loss.backward()
@@ -159,10 +167,15 @@ def fit(ds: Transitions, model_cfg: ModelConfig | None = None, train_cfg: TrainC
         model.load_state_dict(best_state)
         model.eval()
     metrics = {
-        "epochs_run": len(history), "best_epoch": best_epoch, "best_val_loss": best,
-        "final_train_loss": history[-1][0], "final_lr": opt.param_groups[0]["lr"],
-        "n_train": int(len(tr_idx)), "n_val": int(len(va_idx)),
-        "untrained_skills": missing, "wall_seconds": time.perf_counter() - t0,
+        "epochs_run": len(history),
+        "best_epoch": best_epoch,
+        "best_val_loss": best,
+        "final_train_loss": history[-1][0],
+        "final_lr": opt.param_groups[0]["lr"],
+        "n_train": int(len(tr_idx)),
+        "n_val": int(len(va_idx)),
+        "untrained_skills": missing,
+        "wall_seconds": time.perf_counter() - t0,
         "val_errors": error_table(model, ds.subset(va_idx), w) if len(va_idx) else {},
         "history": [[round(a, 6), round(b, 6)] for a, b in history],
     }
@@ -170,8 +183,9 @@ def fit(ds: Transitions, model_cfg: ModelConfig | None = None, train_cfg: TrainC
     return model
 
 
-def error_table(model: LearnedDynamics, ds: Transitions, distance_weights: Mapping[str, float] | None = None
-                ) -> dict[str, Any]:
+def error_table(
+    model: LearnedDynamics, ds: Transitions, distance_weights: Mapping[str, float] | None = None
+) -> dict[str, Any]:
     """Mean absolute error per state component and mean state distance d(f_hat(s, a), s'), per skill."""
     if len(ds) == 0:
         return {"n": 0}
@@ -179,17 +193,23 @@ def error_table(model: LearnedDynamics, ds: Transitions, distance_weights: Mappi
     return _errors(pred, ds.s_next.astype(float), ds.skill(), distance_weights)
 
 
-def _errors(pred: np.ndarray, true: np.ndarray, skill: np.ndarray,
-            distance_weights: Mapping[str, float] | None = None) -> dict[str, Any]:
+def _errors(
+    pred: np.ndarray, true: np.ndarray, skill: np.ndarray, distance_weights: Mapping[str, float] | None = None
+) -> dict[str, Any]:
     w = {"pose": 1.0, "volume": 1.0, **(distance_weights or {})}
     err = np.abs(pred - true)
     d = w["pose"] * np.linalg.norm(pred[:, :3] - true[:, :3], axis=1) + w["volume"] * (err[:, 3] + err[:, 4])
     out: dict[str, Any] = {}
     for name, m in (("all", np.ones(len(err), bool)), ("move", skill == MOVE), ("pour", skill == POUR)):
         if m.any():
-            out[name] = {"n": int(m.sum()), **{f"mae_{c}": float(err[m, j].mean()) for j, c in enumerate(STATE_NAMES)},
-                         "mean_d": float(d[m].mean()), "median_d": float(np.median(d[m])),
-                         "p90_d": float(np.quantile(d[m], 0.9)), "frac_d_gt_0.07": float((d[m] > 0.07).mean())}
+            out[name] = {
+                "n": int(m.sum()),
+                **{f"mae_{c}": float(err[m, j].mean()) for j, c in enumerate(STATE_NAMES)},
+                "mean_d": float(d[m].mean()),
+                "median_d": float(np.median(d[m])),
+                "p90_d": float(np.quantile(d[m], 0.9)),
+                "frac_d_gt_0.07": float((d[m] > 0.07).mean()),
+            }
         else:
             out[name] = {"n": 0}
     return out
@@ -212,21 +232,31 @@ def _as_config(cfg: DynamicsConfig | Mapping[str, Any] | None) -> DynamicsConfig
     return cfg if isinstance(cfg, DynamicsConfig) else DynamicsConfig.from_dict(cfg)
 
 
-def cache_paths(cfg: DynamicsConfig | Mapping[str, Any] | None = None,
-                cache_root: str | Path | None = None, world_cfg: Any = None) -> dict[str, Any]:
+def cache_paths(
+    cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_root: str | Path | None = None, world_cfg: Any = None
+) -> dict[str, Any]:
     """Where the dataset and the checkpoint for ``cfg`` live (whether or not they exist yet)."""
     c = _as_config(cfg)
     root = Path(cache_root if cache_root is not None else c.cache_root)
     dh = data_hash(c, world_cfg)
     mh = model_hash(c, dh)
-    return {"root": root, "data_hash": dh, "model_hash": mh,
-            "dataset": root / f"data-{dh}" / "dataset.pt", "checkpoint": root / f"model-{mh}" / "model.pt"}
+    return {
+        "root": root,
+        "data_hash": dh,
+        "model_hash": mh,
+        "dataset": root / f"data-{dh}" / "dataset.pt",
+        "checkpoint": root / f"model-{mh}" / "model.pt",
+    }
 
 
-def load_or_generate_dataset(cfg: DynamicsConfig | Mapping[str, Any] | None = None,
-                             cache_root: str | Path | None = None, generator: Generator | None = None,
-                             progress: bool | None = None, world_cfg: Any = None,
-                             use_shipped: bool = True) -> Transitions:
+def load_or_generate_dataset(
+    cfg: DynamicsConfig | Mapping[str, Any] | None = None,
+    cache_root: str | Path | None = None,
+    generator: Generator | None = None,
+    progress: bool | None = None,
+    world_cfg: Any = None,
+    use_shipped: bool = True,
+) -> Transitions:
     """The source-world training data for ``cfg``: loaded from the cache, generated only when missing.
 
     ``generator(cfg, shard_dir=..., progress=..., world_cfg=...) -> Transitions`` defaults to
@@ -246,25 +276,36 @@ def load_or_generate_dataset(cfg: DynamicsConfig | Mapping[str, Any] | None = No
             if not path.is_file():
                 show = c.progress if progress is None else progress
                 if generator is None and c.data.pour_batches:  # the random data's own dataset + focused pours
-                    base = load_or_generate_dataset(c.replace(data=dataclasses.replace(c.data, pour_batches=0)),
-                                                    cache_root, None, progress, world_cfg, use_shipped)
-                    pours = data_mod.generate_transitions(c.data, "source", shard_dir=shard_dir, progress=show,
-                                                          world_cfg=world_cfg, pours=True)
+                    base = load_or_generate_dataset(
+                        c.replace(data=dataclasses.replace(c.data, pour_batches=0)),
+                        cache_root,
+                        None,
+                        progress,
+                        world_cfg,
+                        use_shipped,
+                    )
+                    pours = data_mod.generate_transitions(
+                        c.data, "source", shard_dir=shard_dir, progress=show, world_cfg=world_cfg, pours=True
+                    )
                     ds = Transitions.concat([base, pours], meta={**base.meta, "pours": pours.meta})
                 else:
                     gen = generator or data_mod.generate_source_dataset
                     ds = gen(c, shard_dir=shard_dir, progress=show, world_cfg=world_cfg)
                 if len(ds) == 0:
-                    raise DynamicsError("the data generator returned no transitions (all environments unstable?); "
-                                        "check the world config or change data.seed")
+                    raise DynamicsError(
+                        "the data generator returned no transitions (all environments unstable?); "
+                        "check the world config or change data.seed"
+                    )
                 ds.meta = {**ds.meta, "data_hash": dh, "config": c.to_dict()}
                 ds.save(path)
                 log.info("wrote %s (%d transitions)", path, len(ds))
             _finish_data(path, c, dh)
     ds = Transitions.load(path, expected_hash=dh)
     if ds.meta.get("world", "source") != "source":
-        raise DynamicsError(f"{path} holds {ds.meta.get('world')}-world data; the dynamics model is trained on the "
-                            f"source world only. Delete it and regenerate with `{TRAIN_COMMAND}`")
+        raise DynamicsError(
+            f"{path} holds {ds.meta.get('world')}-world data; the dynamics model is trained on the "
+            f"source world only. Delete it and regenerate with `{TRAIN_COMMAND}`"
+        )
     return ds
 
 
@@ -280,9 +321,15 @@ def _finish_data(path: Path, c: DynamicsConfig, dh: str) -> None:
     shutil.rmtree(path.parent / "parts", ignore_errors=True)
 
 
-def load_or_train(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_root: str | Path | None = None,
-                  *, world_cfg: Any = None, generator: Generator | None = None,
-                  progress: bool | None = None, use_shipped: bool = True) -> LearnedDynamics | DynamicsEnsemble:
+def load_or_train(
+    cfg: DynamicsConfig | Mapping[str, Any] | None = None,
+    cache_root: str | Path | None = None,
+    *,
+    world_cfg: Any = None,
+    generator: Generator | None = None,
+    progress: bool | None = None,
+    use_shipped: bool = True,
+) -> LearnedDynamics | DynamicsEnsemble:
     """The trained model for ``cfg`` (a DynamicsConfig or a plain / OmegaConf mapping of its fields).
 
     Loads the cached checkpoint if its config hash matches; otherwise trains (and, if needed,
@@ -296,8 +343,9 @@ def load_or_train(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_r
     c = _as_config(cfg)
     p = cache_paths(c, cache_root, world_cfg)
     if c.model.ensemble > 1:
-        return _load_or_train_ensemble(c, p, world_cfg=world_cfg, generator=generator, progress=progress,
-                                       use_shipped=use_shipped)
+        return _load_or_train_ensemble(
+            c, p, world_cfg=world_cfg, generator=generator, progress=progress, use_shipped=use_shipped
+        )
     ckpt, mh = p["checkpoint"], p["model_hash"]
     folder = ckpt.parent
     if p["dataset"].is_file() and _unfinished_data(p["dataset"]):  # finish it even when the model is cached
@@ -311,25 +359,42 @@ def load_or_train(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_r
                 install_shipped_model(ckpt, mh)
             if not ckpt.is_file():
                 ds = load_or_generate_dataset(c, p["root"], generator, progress, world_cfg)
-                model = fit(ds, c.model, c.train, progress=c.progress if progress is None else progress,
-                            world_cfg=world_config(c.data, world_cfg))
-                model.info.update({"model_hash": mh, "data_hash": p["data_hash"], "config": c.to_dict(),
-                                   "dataset": {"path": str(p["dataset"]), **ds.summary(),
-                                               "generation_wall_seconds": ds.meta.get("wall_seconds")}})
+                model = fit(
+                    ds,
+                    c.model,
+                    c.train,
+                    progress=c.progress if progress is None else progress,
+                    world_cfg=world_config(c.data, world_cfg),
+                )
+                model.info.update(
+                    {
+                        "model_hash": mh,
+                        "data_hash": p["data_hash"],
+                        "config": c.to_dict(),
+                        "dataset": {
+                            "path": str(p["dataset"]),
+                            **ds.summary(),
+                            "generation_wall_seconds": ds.meta.get("wall_seconds"),
+                        },
+                    }
+                )
                 model.save(ckpt)
                 log.info("wrote %s", ckpt)
             # also finishes a directory whose writer was killed after saving the checkpoint
             if not (folder / "config.yaml").is_file() or not (folder / "metrics.json").is_file():
                 info = LearnedDynamics.load(ckpt, expected_hash=mh).info
-                safeio.write_text(folder / "config.yaml",
-                                  yaml.safe_dump({**c.to_dict(), "model_hash": mh, "data_hash": p["data_hash"]}))
+                safeio.write_text(
+                    folder / "config.yaml",
+                    yaml.safe_dump({**c.to_dict(), "model_hash": mh, "data_hash": p["data_hash"]}),
+                )
                 metrics = {k: v for k, v in info["training"].items() if k != "history"}
                 safeio.write_json(folder / "metrics.json", metrics, indent=1)
     return LearnedDynamics.load(ckpt, expected_hash=mh)
 
 
-def is_cached(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_root: str | Path | None = None,
-              world_cfg: Any = None) -> bool:
+def is_cached(
+    cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_root: str | Path | None = None, world_cfg: Any = None
+) -> bool:
     """Whether :func:`load_or_train` finds everything for ``cfg`` in the cache and writes nothing there: every
     single model's checkpoint and metrics (an ensemble caches its members, never itself), and no unfinished
     dataset. A run may then use a read-only cache."""
@@ -346,10 +411,17 @@ def is_cached(cfg: DynamicsConfig | Mapping[str, Any] | None = None, cache_root:
 def _load_or_train_ensemble(c: DynamicsConfig, p: dict[str, Any], **kwargs: Any) -> DynamicsEnsemble:
     """The ensemble of ``c``: each member loaded (or trained) and cached as a single model of its own."""
     members = [load_or_train(m, p["root"], **kwargs) for m in single_models(c)]
-    return DynamicsEnsemble(members, info={
-        "model_hash": p["model_hash"], "data_hash": p["data_hash"], "config": c.to_dict(),
-        "members": [m.info["model_hash"] for m in members], "dataset": members[0].info.get("dataset"),
-        "training": {"members": [{k: v for k, v in m.info["training"].items() if k != "history"} for m in members]}})
+    return DynamicsEnsemble(
+        members,
+        info={
+            "model_hash": p["model_hash"],
+            "data_hash": p["data_hash"],
+            "config": c.to_dict(),
+            "members": [m.info["model_hash"] for m in members],
+            "dataset": members[0].info.get("dataset"),
+            "training": {"members": [{k: v for k, v in m.info["training"].items() if k != "history"} for m in members]},
+        },
+    )
 
 
 def _remove_orphans(*folders: Path) -> None:
@@ -373,9 +445,13 @@ def find_shipped(data_hash: str) -> Path | None:
         return path
     others = sorted(p.name for p in SHIPPED_DIR.glob("source-*.pt")) if SHIPPED_DIR.is_dir() else []
     if others:
-        log.info("the shipped source-world dataset(s) %s were made by another configuration (this one needs "
-                 "data hash %s): generating the data instead (run `python -m dynamics.shipped` to refresh "
-                 "the shipped file)", others, data_hash)
+        log.info(
+            "the shipped source-world dataset(s) %s were made by another configuration (this one needs "
+            "data hash %s): generating the data instead (run `python -m dynamics.shipped` to refresh "
+            "the shipped file)",
+            others,
+            data_hash,
+        )
     return None
 
 
@@ -389,8 +465,11 @@ def install_shipped_model(checkpoint: Path, model_hash: str) -> bool:
     src = shipped_model_path(model_hash)
     if not src.is_file():
         if SHIPPED_DIR.is_dir() and any(SHIPPED_DIR.glob("model-*.pt")):
-            log.info("no shipped dynamics model for model hash %s (the shipped ones were trained with another "
-                     "configuration): training it", model_hash)
+            log.info(
+                "no shipped dynamics model for model hash %s (the shipped ones were trained with another "
+                "configuration): training it",
+                model_hash,
+            )
         return False
     try:  # a damaged or mislabelled file is never copied into the cache
         LearnedDynamics.load(src, expected_hash=model_hash)
@@ -431,9 +510,14 @@ def _run(cfg: Any) -> LearnedDynamics | DynamicsEnsemble:
     t0 = time.perf_counter()
     singles = single_models(c)
     had_data = p["dataset"].is_file()
-    had_model = ["cached" if cache_paths(m)["checkpoint"].is_file()
-                 else "shipped" if shipped_model_path(cache_paths(m)["model_hash"]).is_file()
-                 else "trained" for m in singles]
+    had_model = [
+        "cached"
+        if cache_paths(m)["checkpoint"].is_file()
+        else "shipped"
+        if shipped_model_path(cache_paths(m)["model_hash"]).is_file()
+        else "trained"
+        for m in singles
+    ]
     model = load_or_train(c)
     info = model.info
     print(f"dataset    {p['dataset']} ({'cached' if had_data else 'generated'}): {info['dataset']}")
@@ -441,9 +525,11 @@ def _run(cfg: Any) -> LearnedDynamics | DynamicsEnsemble:
         print(f"           generation wall time {info['dataset']['generation_wall_seconds']:.1f} s")
     for m, had in zip(getattr(model, "members", [model]), had_model):
         tr = m.info["training"]
-        print(f"checkpoint {cache_paths(m.info['config'])['checkpoint']} ({had}): "
-              f"best epoch {tr['best_epoch']} of {tr['epochs_run']}, val loss {tr['best_val_loss']:.4f}, "
-              f"training wall time {tr['wall_seconds']:.1f} s")
+        print(
+            f"checkpoint {cache_paths(m.info['config'])['checkpoint']} ({had}): "
+            f"best epoch {tr['best_epoch']} of {tr['epochs_run']}, val loss {tr['best_val_loss']:.4f}, "
+            f"training wall time {tr['wall_seconds']:.1f} s"
+        )
         print(format_errors(tr["val_errors"], "validation split (source world), mean absolute errors:"))
     print(f"total wall time of this command {time.perf_counter() - t0:.1f} s")
     return model

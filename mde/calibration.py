@@ -163,8 +163,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--model", required=True, help="saved MDE (.pt): GPMDE or GroupedMDE")
     parser.add_argument("--data", required=True, help="held-out data: .pt with a dict {'X': n x d, 'y': n}")
     parser.add_argument("--out", required=True, help="output directory")
-    parser.add_argument("--raw-labels", action="store_true",
-                        help="compare with the raw labels, not capped at the model's label_max as it fits them")
+    parser.add_argument(
+        "--raw-labels",
+        action="store_true",
+        help="compare with the raw labels, not capped at the model's label_max as it fits them",
+    )
     args = parser.parse_args(argv)
     mde = load(args.model)
     X, y = load_heldout(args.data)

@@ -119,17 +119,13 @@ class MDEConfig:
         if not isinstance(self.heteroscedastic, bool):
             raise ValueError(f"heteroscedastic must be true or false, got {self.heteroscedastic!r}")
         if self.input_scaling not in ALLOWED_INPUT_SCALING:
-            raise ValueError(
-                f"input_scaling must be one of {ALLOWED_INPUT_SCALING}, got {self.input_scaling!r}"
-            )
+            raise ValueError(f"input_scaling must be one of {ALLOWED_INPUT_SCALING}, got {self.input_scaling!r}")
         if self.hyperparameter_priors not in ALLOWED_PRIORS:
             raise ValueError(
                 f"hyperparameter_priors must be one of {ALLOWED_PRIORS}, got {self.hyperparameter_priors!r}"
             )
         if self.predict_dtype not in ALLOWED_PREDICT_DTYPE:
-            raise ValueError(
-                f"predict_dtype must be one of {ALLOWED_PREDICT_DTYPE}, got {self.predict_dtype!r}"
-            )
+            raise ValueError(f"predict_dtype must be one of {ALLOWED_PREDICT_DTYPE}, got {self.predict_dtype!r}")
         if self.lengthscale_max is not None:
             _positive_float(self, "lengthscale_max")
         if self.noise_lengthscale_max is not None:
@@ -139,8 +135,9 @@ class MDEConfig:
         if self.latent_std_max is not None:
             _positive_float(self, "latent_std_max")
             if self.latent_std_min is not None and self.latent_std_min >= self.latent_std_max:
-                raise ValueError(f"latent_std_min ({self.latent_std_min}) must be below latent_std_max "
-                                 f"({self.latent_std_max})")
+                raise ValueError(
+                    f"latent_std_min ({self.latent_std_min}) must be below latent_std_max ({self.latent_std_max})"
+                )
         if self.label_max is not None:
             _positive_float(self, "label_max")
         _positive_float(self, "prior_std")

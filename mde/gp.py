@@ -384,8 +384,7 @@ def data_bounds(X: Tensor) -> Tensor:
     return torch.stack([lo, hi])
 
 
-def _kernel(nu: float, d: int, X_t: Tensor, lengthscale_max: float | None = None,
-            priors: str = "none") -> ScaleKernel:
+def _kernel(nu: float, d: int, X_t: Tensor, lengthscale_max: float | None = None, priors: str = "none") -> ScaleKernel:
     """ARD Matern in a ScaleKernel, lengthscales initialised at twice each input's spread.
 
     Inputs are unscaled by default, so GPyTorch's fixed initial lengthscale (0.69) could be orders
@@ -414,15 +413,17 @@ def _kernel(nu: float, d: int, X_t: Tensor, lengthscale_max: float | None = None
     ls_prior = GammaPrior(3.0, 6.0) if gamma else None
     if priors == "lognormal":
         span = data_bounds(X_t.to(DTYPE)).diff(dim=0).reshape(d)
-        ls_prior = LogNormalPrior(loc=math.sqrt(2.0) + 0.5 * math.log(d) + span.log(),
-                                  scale=torch.full((d,), math.sqrt(3.0), dtype=DTYPE))
+        ls_prior = LogNormalPrior(
+            loc=math.sqrt(2.0) + 0.5 * math.log(d) + span.log(), scale=torch.full((d,), math.sqrt(3.0), dtype=DTYPE)
+        )
     if lengthscale_max is None:
         base = MaternKernel(nu=nu, ard_num_dims=d, lengthscale_prior=ls_prior)
         start = torch.where(varies, 2.0 * std, std)  # a constant input starts at 1
     else:
         hi = lengthscale_max * std
-        base = MaternKernel(nu=nu, ard_num_dims=d, lengthscale_prior=ls_prior,
-                            lengthscale_constraint=Interval(1e-4 * std, hi))
+        base = MaternKernel(
+            nu=nu, ard_num_dims=d, lengthscale_prior=ls_prior, lengthscale_constraint=Interval(1e-4 * std, hi)
+        )
         start = 0.5 * hi
     k = ScaleKernel(base, outputscale_prior=GammaPrior(2.0, 0.15) if gamma else None).to(DTYPE)
     base.lengthscale = start.reshape(1, d)
@@ -519,8 +520,15 @@ def build_mean_gp(
     return model
 
 
-def build_noise_gp(X: Tensor, log_noise: Tensor, *, nu: float, bounds: Tensor | None,
-                   lengthscale_max: float | None = None, priors: str = "none") -> SingleTaskGP:
+def build_noise_gp(
+    X: Tensor,
+    log_noise: Tensor,
+    *,
+    nu: float,
+    bounds: Tensor | None,
+    lengthscale_max: float | None = None,
+    priors: str = "none",
+) -> SingleTaskGP:
     """GP on the log of the empirical noise variance (z-scored label units), learned mean."""
     likelihood = _likelihood(1e-4, 0.5, priors)
     with warnings.catch_warnings():
@@ -557,9 +565,7 @@ def fit_gp(model: SingleTaskGP, *, maxiter: int, jitter: float, max_tries: int) 
     # Box on the raw (softplus) parameters: wide enough never to bind at a sensible optimum, but
     # keeps L-BFGS-B's first trial steps from over/underflowing the kernel.
     bounds = {name: (RAW_LOWER, RAW_UPPER) for name in params}
-    closure = ForwardBackwardClosure(
-        forward=lambda: exact_nll(model, jitter, max_tries, X_t=X_t), parameters=params
-    )
+    closure = ForwardBackwardClosure(forward=lambda: exact_nll(model, jitter, max_tries, X_t=X_t), parameters=params)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InputDataWarning)
         fit_gpytorch_mll(

@@ -172,9 +172,15 @@ class GroupedMDE:
     # -- persistence -----------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> Path:
         """Write config, data and every group's fitted state to ``path`` atomically."""
-        payload = {"format": _FORMAT, "version": _FORMAT_VERSION, "config": self._config.to_dict(),
-                   "n_features": self._n_features, "X": self._X, "y": self._y,
-                   "groups": [(g, c.to_payload()) for g, c in self._children.items()]}
+        payload = {
+            "format": _FORMAT,
+            "version": _FORMAT_VERSION,
+            "config": self._config.to_dict(),
+            "n_features": self._n_features,
+            "X": self._X,
+            "y": self._y,
+            "groups": [(g, c.to_payload()) for g, c in self._children.items()],
+        }
         return safeio.save_torch(Path(path), payload)
 
     @classmethod
@@ -185,12 +191,13 @@ class GroupedMDE:
             tag = payload.get("format") if isinstance(payload, dict) else None
             raise ValueError(f"{path} is not a saved {_FORMAT} (format tag {tag!r}); fit the MDE again")
         if payload.get("version") != _FORMAT_VERSION:
-            raise ValueError(f"{path} has format version {payload.get('version')}, this code reads version "
-                             f"{_FORMAT_VERSION}; fit the MDE again")
+            raise ValueError(
+                f"{path} has format version {payload.get('version')}, this code reads version "
+                f"{_FORMAT_VERSION}; fit the MDE again"
+            )
         mde = cls(payload["config"])
         mde._n_features, mde._X, mde._y = payload["n_features"], payload["X"], payload["y"]
-        mde._children = {float(g): GPMDE.from_payload(p, f"{path} group {g}")
-                         for g, p in payload["groups"]}
+        mde._children = {float(g): GPMDE.from_payload(p, f"{path} group {g}") for g, p in payload["groups"]}
         return mde
 
     def __repr__(self) -> str:

@@ -90,8 +90,10 @@ class KernelCache:
         """Exact latent posterior covariance ``a x b`` between two sets of raw inputs, the GP's own units,
         float64: ``s k0(a, b) - k(a, X) K^-1 k(X, b)``. What a look-ahead acquisition needs (how much
         observing ``b`` would tell about ``a``); the planner never calls it."""
-        Qa, Qb = (torch.linalg.solve_triangular(self.L.to(torch.float64), self.cross0(X).to(torch.float64).T,
-                                                upper=False) for X in (Xa, Xb))
+        Qa, Qb = (
+            torch.linalg.solve_triangular(self.L.to(torch.float64), self.cross0(X).to(torch.float64).T, upper=False)
+            for X in (Xa, Xb)
+        )
         prior = self._k0(self._z(Xa), self._z(Xb)).to(torch.float64).mul_(self.outputscale)
         return prior - Qa.T @ Qb
 

@@ -108,8 +108,10 @@ class GPMDE:
         base.update(overrides)
         self._config = MDEConfig.from_dict(base)
         if self._config.group_column is not None:
-            raise ValueError(f"group_column={self._config.group_column}: GPMDE is one GP for all rows; "
-                             "use mde.GroupedMDE for one GP per group (or group_column=null)")
+            raise ValueError(
+                f"group_column={self._config.group_column}: GPMDE is one GP for all rows; "
+                "use mde.GroupedMDE for one GP per group (or group_column=null)"
+            )
         self._fitted: _Fitted | None = None
         self._n_features: int | None = None
         self._prior_model = PriorMDEModel(self._config.prior_std)
@@ -223,9 +225,15 @@ class GPMDE:
             subset = torch.randperm(n, generator=gen)[: cfg.max_fit_points].sort().values
         Xf, yf = (X, y) if subset is None else (X[subset], y[subset])
         fit_kw = dict(maxiter=cfg.fit_maxiter, jitter=cfg.jitter, max_tries=cfg.max_jitter_tries)
-        build_kw = dict(nu=cfg.nu, bounds=bounds, noise_floor=cfg.noise_floor, lengthscale_max=cfg.lengthscale_max,
-                        latent_std_min=cfg.latent_std_min, latent_std_max=cfg.latent_std_max,
-                        priors=cfg.hyperparameter_priors)
+        build_kw = dict(
+            nu=cfg.nu,
+            bounds=bounds,
+            noise_floor=cfg.noise_floor,
+            lengthscale_max=cfg.lengthscale_max,
+            latent_std_min=cfg.latent_std_min,
+            latent_std_max=cfg.latent_std_max,
+            priors=cfg.hyperparameter_priors,
+        )
 
         homo = build_mean_gp(Xf, yf, **build_kw)
         homo_ml = fit_gp(homo, **fit_kw)
@@ -263,9 +271,14 @@ class GPMDE:
         for it in range(1, cfg.max_iters + 1):
             try:
                 log_noise = _empirical_log_noise(current, cfg) + math.log(sigma2)  # label units
-                noise_gp = build_noise_gp(X, log_noise, nu=cfg.nu, bounds=build_kw["bounds"],
-                                          lengthscale_max=cfg.noise_lengthscale_bound,
-                                          priors=cfg.hyperparameter_priors)
+                noise_gp = build_noise_gp(
+                    X,
+                    log_noise,
+                    nu=cfg.nu,
+                    bounds=build_kw["bounds"],
+                    lengthscale_max=cfg.noise_lengthscale_bound,
+                    priors=cfg.hyperparameter_priors,
+                )
                 if prev_noise is not None:  # warm start: later iterations move little
                     noise_gp.covar_module.load_state_dict(prev_noise.covar_module.state_dict())
                     noise_gp.likelihood.load_state_dict(prev_noise.likelihood.state_dict())
@@ -288,8 +301,12 @@ class GPMDE:
                 break
             current, prev_noise = mean_gp, noise_gp
         if best is None:
-            warnings.warn(f"MDE noise model failed on {X.shape[0]} points ({info['heteroscedastic_error']}); "
-                          "using the homoscedastic GP for this fit", RuntimeWarning, stacklevel=3)
+            warnings.warn(
+                f"MDE noise model failed on {X.shape[0]} points ({info['heteroscedastic_error']}); "
+                "using the homoscedastic GP for this fit",
+                RuntimeWarning,
+                stacklevel=3,
+            )
             info["selected_iteration"] = 0
             return homo, None, None, None
         info["selected_iteration"] = best[4]
@@ -453,8 +470,10 @@ class GPMDE:
             tag = payload.get("format") if isinstance(payload, dict) else None
             raise ValueError(f"{source} is not a saved {_FORMAT} (format tag {tag!r}); fit the MDE again")
         if payload.get("version") != _FORMAT_VERSION:
-            raise ValueError(f"{source} has format version {payload.get('version')}, this code reads version "
-                             f"{_FORMAT_VERSION}; fit the MDE again")
+            raise ValueError(
+                f"{source} has format version {payload.get('version')}, this code reads version "
+                f"{_FORMAT_VERSION}; fit the MDE again"
+            )
         mde = cls(payload["config"])
         mde._n_features = payload["n_features"]
         state = payload["fitted"]
@@ -464,9 +483,14 @@ class GPMDE:
         bounds = state["bounds"]
         noise_model = None
         if state["noise_X"] is not None:
-            noise_model = build_noise_gp(state["noise_X"], state["noise_Y"], nu=cfg.nu, bounds=bounds,
-                                         lengthscale_max=cfg.noise_lengthscale_bound,
-                                          priors=cfg.hyperparameter_priors)
+            noise_model = build_noise_gp(
+                state["noise_X"],
+                state["noise_Y"],
+                nu=cfg.nu,
+                bounds=bounds,
+                lengthscale_max=cfg.noise_lengthscale_bound,
+                priors=cfg.hyperparameter_priors,
+            )
         mean_model = build_mean_gp(  # the lengthscale bounds come back with the saved state
             state["X"],
             state["y"],

@@ -8,17 +8,17 @@ dataclasses and the interface helpers in :mod:`planner.interfaces`. Stand-in mod
 
 from .config import PlannerConfig
 from .interfaces import (
-                         ACTION_DIM,
-                         FEATURE_DIM,
-                         SKILL_MOVE,
-                         SKILL_POUR,
-                         STATE_DIM,
-                         DeviationEstimator,
-                         DynamicsModel,
-                         features,
-                         goal_distance,
-                         goal_reached,
-                         spill,
+    ACTION_DIM,
+    FEATURE_DIM,
+    SKILL_MOVE,
+    SKILL_POUR,
+    STATE_DIM,
+    DeviationEstimator,
+    DynamicsModel,
+    features,
+    goal_distance,
+    goal_reached,
+    spill,
 )
 from .results import CandidateSet, PlannerStats, PlanResult, Trajectory
 from .rollout import rollout
@@ -26,8 +26,23 @@ from .rrt import Planner
 from .sampling import ActionSampler
 
 __all__ = [
-    "ACTION_DIM", "FEATURE_DIM", "SKILL_MOVE", "SKILL_POUR", "STATE_DIM",
-    "ActionSampler", "CandidateSet", "DeviationEstimator", "DynamicsModel", "PlanResult",
-    "Planner", "PlannerConfig", "PlannerStats", "Trajectory", "features", "goal_distance", "goal_reached",
-    "rollout", "spill",
+    "ACTION_DIM",
+    "FEATURE_DIM",
+    "SKILL_MOVE",
+    "SKILL_POUR",
+    "STATE_DIM",
+    "ActionSampler",
+    "CandidateSet",
+    "DeviationEstimator",
+    "DynamicsModel",
+    "PlanResult",
+    "Planner",
+    "PlannerConfig",
+    "PlannerStats",
+    "Trajectory",
+    "features",
+    "goal_distance",
+    "goal_reached",
+    "rollout",
+    "spill",
 ]

@@ -118,18 +118,26 @@ class PlannerConfig:
         set_("move_y", _range("move_y", self.move_y))
         set_("pour_theta", _range("pour_theta", self.pour_theta))
         set_("pour_hold", _range("pour_hold", self.pour_hold, 0.0))
-        for key, rng_, i in (("move_x", self.move_x, 0), ("move_y", self.move_y, 1), ("pour_theta", self.pour_theta, 2)):
+        for key, rng_, i in (
+            ("move_x", self.move_x, 0),
+            ("move_y", self.move_y, 1),
+            ("pour_theta", self.pour_theta, 2),
+        ):
             if rng_[0] < lo[i] or rng_[1] > hi[i]:  # an action's target is a state: it must lie in the state box
-                raise ValueError(f"{key}={list(rng_)} reaches outside the state bounds of {names[i]} "
-                                 f"[{lo[i]}, {hi[i]}] (state_low[{i}], state_high[{i}]): widen them or narrow {key}")
+                raise ValueError(
+                    f"{key}={list(rng_)} reaches outside the state bounds of {names[i]} "
+                    f"[{lo[i]}, {hi[i]}] (state_low[{i}], state_high[{i}]): widen them or narrow {key}"
+                )
         lat = self.move_lattice
         if isinstance(lat, bool) or not isinstance(lat, (int, float)) or not math.isfinite(lat) or lat < 0:
             raise ValueError(f"move_lattice={lat!r}: allowed 0 (continuous move targets) or a spacing > 0 m")
         set_("move_lattice", float(lat))
         for key, (a, b) in (("move_x", self.move_x), ("move_y", self.move_y)):
             if lat and math.floor(b / lat + 1e-9) < math.ceil(a / lat - 1e-9):
-                raise ValueError(f"{key}={[a, b]} holds no multiple of move_lattice={lat:g} m: no move target "
-                                 "could be executed; widen the range or change the lattice")
+                raise ValueError(
+                    f"{key}={[a, b]} holds no multiple of move_lattice={lat:g} m: no move target "
+                    "could be executed; widen the range or change the lattice"
+                )
         w = tuple(float(v) for v in self.distance_weights)
         if len(w) != 4 or any(not math.isfinite(v) or v < 0 for v in w) or sum(w) == 0:
             raise ValueError(f"distance_weights must be 4 finite non-negative numbers, not all 0; got {w}")
@@ -162,15 +170,27 @@ class PlannerConfig:
             raise ValueError(f"last_step_proposals={self.last_step_proposals} must be >= 1")
         if not 1 <= int(self.batch_min) <= int(self.batch_max):
             raise ValueError(f"need 1 <= batch_min <= batch_max, got {self.batch_min}, {self.batch_max}")
-        if not isinstance(self.torch_threads, (int, float)) or isinstance(self.torch_threads, bool) or \
-                int(self.torch_threads) != self.torch_threads or self.torch_threads < 0:
-            raise ValueError(f"torch_threads={self.torch_threads!r} must be an integer >= 1, or 0 to leave torch's "
-                             "setting alone")
+        if (
+            not isinstance(self.torch_threads, (int, float))
+            or isinstance(self.torch_threads, bool)
+            or int(self.torch_threads) != self.torch_threads
+            or self.torch_threads < 0
+        ):
+            raise ValueError(
+                f"torch_threads={self.torch_threads!r} must be an integer >= 1, or 0 to leave torch's setting alone"
+            )
         set_("torch_threads", int(self.torch_threads))
         if self.ompl_log_level not in _LOG_LEVELS:
             raise ValueError(f"ompl_log_level={self.ompl_log_level!r} not one of {sorted(_LOG_LEVELS)}")
-        for k in ("max_actions", "n_candidates", "propagation_budget", "seed", "batch_min", "batch_max",
-                  "last_step_proposals"):
+        for k in (
+            "max_actions",
+            "n_candidates",
+            "propagation_budget",
+            "seed",
+            "batch_min",
+            "batch_max",
+            "last_step_proposals",
+        ):
             set_(k, int(getattr(self, k)))
 
     # -- conversion ----------------------------------------------------------------------------
@@ -184,6 +204,7 @@ class PlannerConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict with lists for ranges (the YAML layout)."""
+
         def conv(v: Any) -> Any:
             if dataclasses.is_dataclass(v):
                 return {f.name: conv(getattr(v, f.name)) for f in fields(v)}

@@ -97,9 +97,11 @@ def resolve_workers(value: Any, field: str = "planner.workers") -> int:
     if isinstance(value, str) and value.strip().lower() == "auto":
         return max(1, min(available_cpus(), AUTO_MAX_WORKERS))
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or int(value) < 1:
-        raise ValueError(f"{field} = {value!r}: allowed an integer >= 1 (1 = plan in the main process) or 'auto' "
-                         f"(= min(CPUs, {AUTO_MAX_WORKERS}) = {max(1, min(available_cpus(), AUTO_MAX_WORKERS))} "
-                         f"here)")
+        raise ValueError(
+            f"{field} = {value!r}: allowed an integer >= 1 (1 = plan in the main process) or 'auto' "
+            f"(= min(CPUs, {AUTO_MAX_WORKERS}) = {max(1, min(available_cpus(), AUTO_MAX_WORKERS))} "
+            f"here)"
+        )
     return int(value)
 
 
@@ -128,18 +130,20 @@ class PlanRequest:
     def run(self, planner: Planner) -> PlanResult | CandidateSet:
         """Execute this request with ``planner`` (the single place both paths call the planner)."""
         if self.kind == "plan":
-            return planner.plan(self.start, self.goal, beta=self.beta, d_max=self.d_max, tol=self.tol,
-                                seed=self.seed)
-        return planner.plan_candidates(self.start, self.goal, n=self.n, beta=self.beta, d_max=self.d_max,
-                                       tol=self.tol, seed=self.seed)
+            return planner.plan(self.start, self.goal, beta=self.beta, d_max=self.d_max, tol=self.tol, seed=self.seed)
+        return planner.plan_candidates(
+            self.start, self.goal, n=self.n, beta=self.beta, d_max=self.d_max, tol=self.tol, seed=self.seed
+        )
 
     def units(self, config: PlannerConfig) -> list["PlanRequest"]:
         """Single plans whose results make this request's: itself, or the N runs of a candidate set
         with the seeds :meth:`Planner.plan_candidates` gives them (so that they balance over workers)."""
         if self.kind == "plan":
             return [self]
-        return [PlanRequest("plan", self.start, self.goal, beta=self.beta, d_max=self.d_max, seed=child,
-                            tol=self.tol) for child in candidate_seeds(config, self.n, self.seed)]
+        return [
+            PlanRequest("plan", self.start, self.goal, beta=self.beta, d_max=self.d_max, seed=child, tol=self.tol)
+            for child in candidate_seeds(config, self.n, self.seed)
+        ]
 
 
 class PlanPool:
@@ -155,8 +159,9 @@ class PlanPool:
     and GPyTorch, ~1.5 s); otherwise the first batch that carries an MDE pays for that import.
     """
 
-    def __init__(self, dynamics: DynamicsModel, config: PlannerConfig, workers: int | str = 1,
-                 preload: Sequence[str] = ()) -> None:
+    def __init__(
+        self, dynamics: DynamicsModel, config: PlannerConfig, workers: int | str = 1, preload: Sequence[str] = ()
+    ) -> None:
         self.dynamics = dynamics
         self.config = config
         self.preload = tuple(preload)
@@ -176,8 +181,9 @@ class PlanPool:
         """True when requests go to worker processes (now or on the next :meth:`run`)."""
         return self.workers > 1 and self.fallback_reason is None and not self._closed
 
-    def run(self, requests: Sequence[PlanRequest], mde: DeviationEstimator | None = None,
-            errors: str = "raise") -> list[PlanResult | CandidateSet]:
+    def run(
+        self, requests: Sequence[PlanRequest], mde: DeviationEstimator | None = None, errors: str = "raise"
+    ) -> list[PlanResult | CandidateSet]:
         """Results of ``requests`` in request order, as in-process calls with ``mde`` would give.
 
         ``errors``: "raise" (the first failing request's exception ends the batch) or "record" (a
@@ -185,8 +191,9 @@ class PlanPool:
         """
         return self.run_groups([(requests, mde)], errors)[0]
 
-    def run_groups(self, groups: Sequence[tuple[Sequence[PlanRequest], DeviationEstimator | None]],
-                   errors: str = "raise") -> list[list[PlanResult | CandidateSet]]:
+    def run_groups(
+        self, groups: Sequence[tuple[Sequence[PlanRequest], DeviationEstimator | None]], errors: str = "raise"
+    ) -> list[list[PlanResult | CandidateSet]]:
         """:meth:`run` for several (requests, mde) groups at once, spread over the workers together:
         ``out[g][k]`` is what ``run(groups[g][0], groups[g][1])[k]`` gives. How runs that each have
         their own MDE (every method and seed of a lockstep round) share one planning batch."""
@@ -226,8 +233,12 @@ class PlanPool:
             self._tmp = Path(tempfile.mkdtemp(prefix="planpool-"))
             ctx = multiprocessing.get_context("spawn")
             with _thread_env():  # inherited by the children at spawn time
-                self._executor = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker,
-                                                     initargs=(payload, self.config, self.preload))
+                self._executor = ProcessPoolExecutor(
+                    self.workers,
+                    mp_context=ctx,
+                    initializer=_init_worker,
+                    initargs=(payload, self.config, self.preload),
+                )
                 ready = self._executor.submit(_worker_pid)  # spawns the first process
                 for _ in range(self.workers - 1):  # each submit spawns one more (none is idle yet)
                     self._executor.submit(_worker_pid)
@@ -255,8 +266,13 @@ class PlanPool:
         self.close(wait_for_workers=exc_type is None)
 
     def __repr__(self) -> str:
-        state = "closed" if self._closed else "in-process" if not self.parallel else (
-            "running" if self._executor is not None else "not started")
+        state = (
+            "closed"
+            if self._closed
+            else "in-process"
+            if not self.parallel
+            else ("running" if self._executor is not None else "not started")
+        )
         return f"PlanPool(workers={self.workers}, {state})"
 
     # -- internals ----------------------------------------------------------------------------------
@@ -269,11 +285,16 @@ class PlanPool:
             if r.kind == "plan":
                 out.append(_recorded(lambda u=r: u.run(planner), r, self.config))
             else:  # per run, so that one failing run keeps its siblings' candidates
-                out.append(collect_candidates([_recorded(lambda u=u: u.run(planner), u, self.config) for u in r.units(self.config)]))
+                out.append(
+                    collect_candidates(
+                        [_recorded(lambda u=u: u.run(planner), u, self.config) for u in r.units(self.config)]
+                    )
+                )
         return out
 
-    def _run_in_workers(self, groups: list[tuple[list[PlanRequest], DeviationEstimator | None]],
-                        record: bool = False) -> list[list]:
+    def _run_in_workers(
+        self, groups: list[tuple[list[PlanRequest], DeviationEstimator | None]], record: bool = False
+    ) -> list[list]:
         assert self._executor is not None
         unit_sets = [[r.units(self.config) for r in reqs] for reqs, _ in groups]
         units = [u for sets in unit_sets for us in sets for u in us]
@@ -297,7 +318,7 @@ class PlanPool:
                 done.append(_recorded(f.result, u, self.config) if record else f.result())
         except BrokenProcessPool as e:
             self._fall_back(f"a planner worker process died ({e})")
-            done += self._finish_here(units[len(done):], futures[len(done):], mdes[len(done):], record)
+            done += self._finish_here(units[len(done) :], futures[len(done) :], mdes[len(done) :], record)
         except Exception:  # a request failed: as in-process, its error ends the batch
             _drop(futures, wait_running=True)
             raise
@@ -308,13 +329,14 @@ class PlanPool:
         for (reqs, _), sets in zip(groups, unit_sets):
             results = []
             for r, us in zip(reqs, sets):
-                runs, i = done[i:i + len(us)], i + len(us)
+                runs, i = done[i : i + len(us)], i + len(us)
                 results.append(runs[0] if r.kind == "plan" else collect_candidates(runs))
             out.append(results)
         return out
 
-    def _finish_here(self, units: list[PlanRequest], futures: list[Future], mdes: list, record: bool = False
-                     ) -> list[PlanResult]:
+    def _finish_here(
+        self, units: list[PlanRequest], futures: list[Future], mdes: list, record: bool = False
+    ) -> list[PlanResult]:
         """After a worker died: keep what finished, plan the rest in-process (in order)."""
         out = []
         for u, f, mde in zip(units, futures, mdes):
@@ -322,8 +344,9 @@ class PlanPool:
                 out.append(f.result())
             else:
                 planner = Planner(self.dynamics, mde, self.config)
-                out.append(_recorded(lambda u=u, planner=planner: u.run(planner), u, self.config) if record
-                           else u.run(planner))
+                out.append(
+                    _recorded(lambda u=u, planner=planner: u.run(planner), u, self.config) if record else u.run(planner)
+                )
         return out
 
     def _publish_mdes(self, mdes: list[DeviationEstimator | None]) -> list[tuple[str, str] | None]:
@@ -351,8 +374,7 @@ class PlanPool:
 
     def _fall_back(self, reason: str) -> None:
         self.fallback_reason = reason
-        log.warning("planner: %s; planning in the main process from now on (results are the same, only slower)",
-                    reason)
+        log.warning("planner: %s; planning in the main process from now on (results are the same, only slower)", reason)
         self._shutdown(wait_for_workers=False)
 
     def _shutdown(self, wait_for_workers: bool) -> None:
@@ -383,18 +405,32 @@ def _warn_time_budget(out: list[list[PlanResult | CandidateSet]], config: Planne
     runs = [r for results in out for res in results for r in (getattr(res, "runs", None) or [res])]
     hit = sum(getattr(r.stats, "termination", None) == "time_budget" for r in runs)
     if hit:
-        log.warning("planner: %d of %d run(s) stopped on the wall-clock time budget (%g s) before the propagation "
-                    "budget: not reproducible (was the process suspended or the machine overloaded?)", hit, len(runs),
-                    config.time_budget)
+        log.warning(
+            "planner: %d of %d run(s) stopped on the wall-clock time budget (%g s) before the propagation "
+            "budget: not reproducible (was the process suspended or the machine overloaded?)",
+            hit,
+            len(runs),
+            config.time_budget,
+        )
 
 
 def failed_run(request: PlanRequest, error: BaseException, config: PlannerConfig) -> PlanResult:
     """A single run that raised, recorded as a run that found nothing (``termination="error"``), with the
     seed that run reports."""
     seed, _ = run_seeds(run_seed_sequence(config, request.seed))
-    stats = PlannerStats(found=False, time_s=0.0, propagations=0, mde_evaluations=0, expansions=0, rejected=0,
-                         tree_size=0, termination="error", seed=seed, best_goal_distance=float("inf"),
-                         error=f"{type(error).__name__}: {error}")
+    stats = PlannerStats(
+        found=False,
+        time_s=0.0,
+        propagations=0,
+        mde_evaluations=0,
+        expansions=0,
+        rejected=0,
+        tree_size=0,
+        termination="error",
+        seed=seed,
+        best_goal_distance=float("inf"),
+        error=f"{type(error).__name__}: {error}",
+    )
     return PlanResult(None, stats)
 
 
@@ -405,8 +441,13 @@ def _recorded(call: Callable[[], PlanResult], unit: PlanRequest, config: Planner
     except BrokenProcessPool:
         raise
     except Exception as e:  # noqa: BLE001 - recorded, logged, the batch goes on
-        log.warning("a plan failed and is recorded as not found (goal %.3f, seed %s): %s: %s", unit.goal, unit.seed,
-                    type(e).__name__, e)
+        log.warning(
+            "a plan failed and is recorded as not found (goal %.3f, seed %s): %s: %s",
+            unit.goal,
+            unit.seed,
+            type(e).__name__,
+            e,
+        )
         return failed_run(unit, e, config)
 
 

@@ -19,8 +19,7 @@ def validate_start(start, config: PlannerConfig) -> np.ndarray:
     """Return ``start`` as a float array or raise ``ValueError`` naming the bad field."""
     s = np.asarray(start, dtype=float)
     if s.shape != (STATE_DIM,):
-        raise ValueError(f"start must be a state vector of {STATE_DIM} values "
-                         f"{STATE_NAMES}, got shape {s.shape}")
+        raise ValueError(f"start must be a state vector of {STATE_DIM} values {STATE_NAMES}, got shape {s.shape}")
     for i, name in enumerate(STATE_NAMES):
         lo, hi = config.state_low[i], config.state_high[i]
         v = float(s[i])

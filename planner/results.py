@@ -29,9 +29,11 @@ class Trajectory:
             object.__setattr__(self, k, a)
         T = len(self.actions)
         if self.states.shape != (T + 1, 5) or self.mu.shape != (T,) or self.sigma.shape != (T,):
-            raise ValueError("inconsistent trajectory shapes: "
-                             f"actions {self.actions.shape}, states {self.states.shape}, "
-                             f"mu {self.mu.shape}, sigma {self.sigma.shape}")
+            raise ValueError(
+                "inconsistent trajectory shapes: "
+                f"actions {self.actions.shape}, states {self.states.shape}, "
+                f"mu {self.mu.shape}, sigma {self.sigma.shape}"
+            )
 
     def __len__(self) -> int:
         return len(self.actions)
@@ -51,8 +53,11 @@ class Trajectory:
         return self.states[-1]
 
     def same_as(self, other: "Trajectory", atol: float = 1e-12) -> bool:
-        return (len(self) == len(other) and np.allclose(self.actions, other.actions, atol=atol, rtol=0)
-                and np.allclose(self.states, other.states, atol=atol, rtol=0))
+        return (
+            len(self) == len(other)
+            and np.allclose(self.actions, other.actions, atol=atol, rtol=0)
+            and np.allclose(self.states, other.states, atol=atol, rtol=0)
+        )
 
     def describe(self) -> str:
         return " -> ".join(describe_action(a) for a in self.actions) or "(no actions)"

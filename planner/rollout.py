@@ -20,8 +20,9 @@ from .rrt import _Evaluator
 from .sampling import ActionSampler
 
 
-def rollout(dynamics: DynamicsModel, mde: DeviationEstimator | None, start, actions,
-            config: PlannerConfig | None = None) -> Trajectory:
+def rollout(
+    dynamics: DynamicsModel, mde: DeviationEstimator | None, start, actions, config: PlannerConfig | None = None
+) -> Trajectory:
     """Predict states for ``actions`` [T, 3] from ``start`` and the MDE output for every step.
 
     No precondition or goal check is applied (a baseline executes whatever it sampled).
@@ -35,7 +36,7 @@ def rollout(dynamics: DynamicsModel, mde: DeviationEstimator | None, start, acti
     lo, hi = np.asarray(config.state_low), np.asarray(config.state_high)
     with torch_threads(config.torch_threads):
         for t in range(len(a)):
-            nxt = ev.predict_next(states[-1][None], a[t:t + 1])[0]
+            nxt = ev.predict_next(states[-1][None], a[t : t + 1])[0]
             states.append(np.clip(nxt, lo, hi) if config.clip_to_bounds else nxt)
         S = np.array(states)
         mu, sd = ev.deviation(S[:-1], a) if len(a) else (np.zeros(0), np.zeros(0))

@@ -78,8 +78,13 @@ _GOAL_EPS = 1e-12
 
 
 def _log_level(name: str):
-    return {"none": ou.LOG_NONE, "error": ou.LOG_ERROR, "warn": ou.LOG_WARN,
-            "info": ou.LOG_INFO, "debug": ou.LOG_DEBUG}[name]
+    return {
+        "none": ou.LOG_NONE,
+        "error": ou.LOG_ERROR,
+        "warn": ou.LOG_WARN,
+        "info": ou.LOG_INFO,
+        "debug": ou.LOG_DEBUG,
+    }[name]
 
 
 @contextlib.contextmanager
@@ -135,8 +140,7 @@ class _Queue:
 
     __slots__ = ("nxt", "act", "mu", "sd", "pos", "size", "k", "total")
 
-    def __init__(self, nxt: np.ndarray, act: np.ndarray, mu: np.ndarray, sd: np.ndarray, k: int,
-                 total: int) -> None:
+    def __init__(self, nxt: np.ndarray, act: np.ndarray, mu: np.ndarray, sd: np.ndarray, k: int, total: int) -> None:
         self.nxt, self.act, self.mu, self.sd = nxt, act, mu, sd
         self.pos = 0
         self.size = len(nxt)
@@ -151,9 +155,19 @@ class _Search:
     with it and are freed when the run's scope ends.
     """
 
-    def __init__(self, evaluator: "_Evaluator", config: PlannerConfig, start: np.ndarray, g: float,
-                 tol: float, beta: float, d_max: float, rng: np.random.Generator,
-                 propagation_budget: int, deadline: float) -> None:
+    def __init__(
+        self,
+        evaluator: "_Evaluator",
+        config: PlannerConfig,
+        start: np.ndarray,
+        g: float,
+        tol: float,
+        beta: float,
+        d_max: float,
+        rng: np.random.Generator,
+        propagation_budget: int,
+        deadline: float,
+    ) -> None:
         self.ev = evaluator
         self.c = config
         self.g, self.tol, self.beta, self.d_max = g, tol, beta, d_max
@@ -351,8 +365,12 @@ class _Search:
         Keeping such states out of the tree saves most of the search.
         """
         vc, vt, tol = states[:, 3], states[:, 4], self.accept_tol
-        return ((1.0 - vc - vt > self.c.spill_limit) | (vt > self.g + tol)
-                | (vc + vt < self.g - tol) | (np.abs(states[:, 2]) > self.c.stuck_tilt))
+        return (
+            (1.0 - vc - vt > self.c.spill_limit)
+            | (vt > self.g + tol)
+            | (vc + vt < self.g - tol)
+            | (np.abs(states[:, 2]) > self.c.stuck_tilt)
+        )
 
     def _stuck_move(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """Moves predicted to stop short of their target (stuck on the way): the trajectory would end there."""
@@ -494,8 +512,9 @@ class Planner:
     refitting the MDE).
     """
 
-    def __init__(self, dynamics: DynamicsModel, mde: DeviationEstimator | None = None,
-                 config: PlannerConfig | None = None) -> None:
+    def __init__(
+        self, dynamics: DynamicsModel, mde: DeviationEstimator | None = None, config: PlannerConfig | None = None
+    ) -> None:
         if _OMPL_IMPORT_ERROR is not None:  # pragma: no cover
             raise ImportError("planner.Planner needs the `ompl` package (>= 2.0)") from _OMPL_IMPORT_ERROR
         self.config = config or PlannerConfig()
@@ -504,9 +523,18 @@ class Planner:
         self.sampler = ActionSampler(self.config)
 
     # -- public API -------------------------------------------------------------------------------
-    def plan(self, start, goal: float, *, beta: float | None = None, d_max: float | None = None,
-             tol: float | None = None, seed: int | np.random.SeedSequence | None = None,
-             time_budget: float | None = None, propagation_budget: int | None = None) -> PlanResult:
+    def plan(
+        self,
+        start,
+        goal: float,
+        *,
+        beta: float | None = None,
+        d_max: float | None = None,
+        tol: float | None = None,
+        seed: int | np.random.SeedSequence | None = None,
+        time_budget: float | None = None,
+        propagation_budget: int | None = None,
+    ) -> PlanResult:
         """One RRT run from ``start`` to ``|v_tgt - goal| <= tol`` with spill within the limit.
 
         Returns a :class:`PlanResult`; not finding a plan within the budgets is a normal result
@@ -524,10 +552,19 @@ class Planner:
             raise ValueError(f"propagation_budget={propagation_budget!r} must be >= 1")
         return self._run(s0, g, t, b, d, run_seed_sequence(c, seed), tb, pb)
 
-    def plan_candidates(self, start, goal: float, *, n: int | None = None, beta: float | None = None,
-                        d_max: float | None = None, tol: float | None = None, seed: int | None = None,
-                        time_budget: float | None = None,
-                        propagation_budget: int | None = None) -> CandidateSet:
+    def plan_candidates(
+        self,
+        start,
+        goal: float,
+        *,
+        n: int | None = None,
+        beta: float | None = None,
+        d_max: float | None = None,
+        tol: float | None = None,
+        seed: int | None = None,
+        time_budget: float | None = None,
+        propagation_budget: int | None = None,
+    ) -> CandidateSet:
         """``n`` (default ``config.n_candidates``) independent seeded RRT runs for one problem.
 
         Each run gets its own child seed of ``seed``, its own tree and its own budgets; the set
@@ -537,13 +574,33 @@ class Planner:
         trees: two runs practically never share a continuous action sequence, and exact
         duplicates are dropped.
         """
-        runs = [self.plan(start, goal, beta=beta, d_max=d_max, tol=tol, seed=child, time_budget=time_budget,
-                          propagation_budget=propagation_budget) for child in candidate_seeds(self.config, n, seed)]
+        runs = [
+            self.plan(
+                start,
+                goal,
+                beta=beta,
+                d_max=d_max,
+                tol=tol,
+                seed=child,
+                time_budget=time_budget,
+                propagation_budget=propagation_budget,
+            )
+            for child in candidate_seeds(self.config, n, seed)
+        ]
         return collect_candidates(runs)
 
     # -- internals --------------------------------------------------------------------------------
-    def _run(self, start: np.ndarray, g: float, tol: float, beta: float, d_max: float,
-             ss: np.random.SeedSequence, time_budget: float, propagation_budget: int) -> PlanResult:
+    def _run(
+        self,
+        start: np.ndarray,
+        g: float,
+        tol: float,
+        beta: float,
+        d_max: float,
+        ss: np.random.SeedSequence,
+        time_budget: float,
+        propagation_budget: int,
+    ) -> PlanResult:
         c = self.config
         t0 = time.perf_counter()
         np_seed, ompl_seed = run_seeds(ss)
@@ -554,17 +611,39 @@ class Planner:
 
         if search.gdist[0] <= 0.0:  # the start already satisfies the goal: the empty plan
             traj = search.trajectory_to(0)
-            return PlanResult(traj, PlannerStats(found=True, time_s=time.perf_counter() - t0, propagations=0,
-                                                 mde_evaluations=0, expansions=0, rejected=0, tree_size=1,
-                                                 termination="trivial", seed=seed_repr,
-                                                 best_goal_distance=0.0))
+            return PlanResult(
+                traj,
+                PlannerStats(
+                    found=True,
+                    time_s=time.perf_counter() - t0,
+                    propagations=0,
+                    mde_evaluations=0,
+                    expansions=0,
+                    rejected=0,
+                    tree_size=1,
+                    termination="trivial",
+                    seed=seed_repr,
+                    best_goal_distance=0.0,
+                ),
+            )
 
         if c.prune_dead_states and bool(search._dead(start[None])[0]):
             # too much spilled / poured already or too little water left: no plan can exist
-            return PlanResult(None, PlannerStats(found=False, time_s=time.perf_counter() - t0, propagations=0,
-                                                 mde_evaluations=0, expansions=0, rejected=0, tree_size=1,
-                                                 termination="unreachable", seed=seed_repr,
-                                                 best_goal_distance=float(search.gdist[0])))
+            return PlanResult(
+                None,
+                PlannerStats(
+                    found=False,
+                    time_s=time.perf_counter() - t0,
+                    propagations=0,
+                    mde_evaluations=0,
+                    expansions=0,
+                    rejected=0,
+                    tree_size=1,
+                    termination="unreachable",
+                    seed=seed_repr,
+                    best_goal_distance=float(search.gdist[0]),
+                ),
+            )
 
         with _ompl_log(c.ompl_log_level), torch_threads(c.torch_threads):
             goal_node = self._solve_with_ompl(search, start, ompl_seed % (2**31 - 1) + 1)
@@ -585,11 +664,18 @@ class Planner:
         else:
             termination = "exhausted"
         best = float(np.min(search.gdist[: search.n]))
-        stats = PlannerStats(found=found, time_s=elapsed, propagations=search.rows,
-                             mde_evaluations=search.mde_rows,
-                             expansions=search.expansions, rejected=search.rejected,
-                             tree_size=search.n, termination=termination, seed=seed_repr,
-                             best_goal_distance=best)
+        stats = PlannerStats(
+            found=found,
+            time_s=elapsed,
+            propagations=search.rows,
+            mde_evaluations=search.mde_rows,
+            expansions=search.expansions,
+            rejected=search.rejected,
+            tree_size=search.n,
+            termination=termination,
+            seed=seed_repr,
+            best_goal_distance=best,
+        )
         traj = search.trajectory_to(goal_node) if found else None
         return PlanResult(traj, stats)
 
@@ -614,8 +700,7 @@ class Planner:
         meta = ob.RealVectorStateSpace(1)
         meta.setBounds(_INVALID, float(2**31))
         w = c.distance_weights
-        space = ob.CompoundStateSpace([rv([0, 1]), rv([2]), rv([3]), rv([4]), meta],
-                                      [w[0], w[1], w[2], w[3], 0.0])
+        space = ob.CompoundStateSpace([rv([0, 1]), rv([2]), rv([3]), rv([4]), meta], [w[0], w[1], w[2], w[3], 0.0])
         cspace = oc.RealVectorControlSpace(space, 3)
         cb = ob.RealVectorBounds(3)
         cb.setLow(0.0)
@@ -674,8 +759,9 @@ def run_seeds(ss: np.random.SeedSequence) -> tuple[int, int]:
     return int(np_seed), int(ompl_seed)
 
 
-def candidate_seeds(config: PlannerConfig, n: int | None = None, seed: int | None = None
-                    ) -> list[np.random.SeedSequence]:
+def candidate_seeds(
+    config: PlannerConfig, n: int | None = None, seed: int | None = None
+) -> list[np.random.SeedSequence]:
     """Seeds of the ``n`` runs of :meth:`Planner.plan_candidates` (``None``: the config's values).
 
     Separate so that the runs can be planned elsewhere (:mod:`planner.pool`) and assembled by

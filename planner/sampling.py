@@ -26,8 +26,12 @@ class ActionSampler:
         self.config = config or PlannerConfig()
         c = self.config
         self._lo = np.array([[c.move_x[0], c.move_y[0]], [c.pour_theta[0], c.pour_hold[0]]])
-        self._span = np.array([[c.move_x[1] - c.move_x[0], c.move_y[1] - c.move_y[0]],
-                               [c.pour_theta[1] - c.pour_theta[0], c.pour_hold[1] - c.pour_hold[0]]])
+        self._span = np.array(
+            [
+                [c.move_x[1] - c.move_x[0], c.move_y[1] - c.move_y[0]],
+                [c.pour_theta[1] - c.pour_theta[0], c.pour_hold[1] - c.pour_hold[0]],
+            ]
+        )
 
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """``n`` actions as a float array [n, 3] of ``(skill_id, p1, p2)``."""

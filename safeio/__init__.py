@@ -22,8 +22,19 @@ import secrets
 from pathlib import Path
 from typing import IO, Any, Callable, Union
 
-__all__ = ["atomic_write", "write_text", "write_json", "save_torch", "save_figure", "adopt", "json_default",
-           "remove_orphans", "current_umask", "fsync_dir", "TMP_SUFFIX"]
+__all__ = [
+    "atomic_write",
+    "write_text",
+    "write_json",
+    "save_torch",
+    "save_figure",
+    "adopt",
+    "json_default",
+    "remove_orphans",
+    "current_umask",
+    "fsync_dir",
+    "TMP_SUFFIX",
+]
 
 TMP_SUFFIX = ".tmp"
 #: what :func:`atomic_write` accepts: the bytes / text to write, or a function writing to a binary file

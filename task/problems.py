@@ -51,12 +51,16 @@ def _block(world_cfg: Any, name: str) -> Mapping[str, Any]:
 def draw_plant_jitter(plant: Any, rng: np.random.Generator) -> np.ndarray:
     """One plant-pose jitter (dx, dy (m), dtilt (rad)), uniform within the world's ``plant.jitter_xy`` /
     ``jitter_tilt``; three draws from ``rng`` in that order (the problems' random stream depends on it)."""
-    return np.array([rng.uniform(-1, 1) * plant["jitter_xy"], rng.uniform(-1, 1) * plant["jitter_xy"],
-                     rng.uniform(-1, 1) * plant["jitter_tilt"]])
+    return np.array(
+        [
+            rng.uniform(-1, 1) * plant["jitter_xy"],
+            rng.uniform(-1, 1) * plant["jitter_xy"],
+            rng.uniform(-1, 1) * plant["jitter_tilt"],
+        ]
+    )
 
 
-def sample_problems(world_cfg: Any, n: int, seed: int | np.random.Generator,
-                    world: str = "target") -> list[Problem]:
+def sample_problems(world_cfg: Any, n: int, seed: int | np.random.Generator, world: str = "target") -> list[Problem]:
     """``n`` problems from the world's ``problems:`` block; the same seed gives the same problems.
 
     ``world_cfg`` is the world config: a ``sim.world.WorldConfig`` or its mapping (``cfg["world"]``),
@@ -78,6 +82,12 @@ def sample_problems(world_cfg: Any, n: int, seed: int | np.random.Generator,
         if world == "source":
             jit[:] = 0.0
         x, y = on_lattice((x, y), lattice)
-        out.append(Problem(start=np.array([x, y, 0.0, 1.0, 0.0]), goal=float(rng.uniform(*pr["goal"])),
-                           plant_jitter=jit, world=world))
+        out.append(
+            Problem(
+                start=np.array([x, y, 0.0, 1.0, 0.0]),
+                goal=float(rng.uniform(*pr["goal"])),
+                plant_jitter=jit,
+                world=world,
+            )
+        )
     return out

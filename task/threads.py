@@ -25,8 +25,9 @@ def torch_threads(n: int) -> Iterator[None]:
     other), and a fixed count keeps floating-point reductions, and so results, the same from run to run.
     """
     if isinstance(n, bool) or int(n) != n or n < 0:
-        raise ValueError(f"torch threads = {n!r}: allowed an integer >= 1, or {KEEP_TORCH_THREADS} to leave "
-                         "torch's setting alone")
+        raise ValueError(
+            f"torch threads = {n!r}: allowed an integer >= 1, or {KEEP_TORCH_THREADS} to leave torch's setting alone"
+        )
     prev = torch.get_num_threads()
     if n == KEEP_TORCH_THREADS or n == prev:
         yield

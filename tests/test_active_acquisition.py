@@ -1,6 +1,5 @@
 """Acquisition functions against values computed by hand from a known posterior."""
 
-
 import pytest
 import torch
 from botorch.models.model import Model
@@ -98,16 +97,23 @@ def test_thompson_draws_are_reproducible_and_follow_the_posterior():
     assert not torch.equal(acq(A), TrajectoryThompson(KnownPosterior(), seed=4)(A))
     # one-step trajectories at mean 0.05, std 0.02, each with its own (tiny) feature offset: a distinct draw each
     n = 4000
-    X = torch.stack([torch.full((n,), 0.05, dtype=torch.float64), torch.full((n,), 0.0004, dtype=torch.float64),
-                     torch.arange(n, dtype=torch.float64)], dim=-1).unsqueeze(1)
+    X = torch.stack(
+        [
+            torch.full((n,), 0.05, dtype=torch.float64),
+            torch.full((n,), 0.0004, dtype=torch.float64),
+            torch.arange(n, dtype=torch.float64),
+        ],
+        dim=-1,
+    ).unsqueeze(1)
     draws = -acq(X)
     assert abs(float(draws.mean()) - 0.05) < 4 * 0.02 / n**0.5
     assert float(draws.std()) == pytest.approx(0.02, rel=0.05)
     # a certain low trajectory against an uncertain one of higher mean: alpha always picks the first, Thompson the
     # second in about the share of draws below 0.03 (P(N(0.035, 0.05^2) < 0.03) = 0.46)
     certain, uncertain = traj((0.03, 1e-12, 0.0)), traj((0.035, 0.0025, 0.0))
-    picks = [int(TrajectoryThompson(KnownPosterior(), seed=k)(torch.cat([certain, uncertain])).argmax())
-             for k in range(400)]
+    picks = [
+        int(TrajectoryThompson(KnownPosterior(), seed=k)(torch.cat([certain, uncertain])).argmax()) for k in range(400)
+    ]
     assert 0.38 < sum(picks) / len(picks) < 0.54
     assert int(DiscountedMaxUCB(KnownPosterior(), c=0.0)(torch.cat([certain, uncertain])).argmax()) == 0
 
@@ -127,15 +133,20 @@ def test_user_acquisition_plugs_in_by_target(tmp_path, monkeypatch):
         "class WorstStepStd(TrajectoryAcquisition):\n"
         "    minimise = True\n"
         "    def step_score(self, mean, std):\n"
-        "        return std\n")
+        "        return std\n"
+    )
     monkeypatch.syspath_prepend(str(tmp_path))
     from active.methods import build_method
     from active.run import compose_config
 
     # README: a new method beside the others, with the user's acquisition as its own
-    overrides = ["+methods.mine._target_=active.methods.ActiveChoice",
-                 "+methods.mine.acquisition._target_=my_acq.WorstStepStd", "method=mine", "experiment=tiny",
-                 f"dynamics.cache_root={tmp_path / 'cache'}"]
+    overrides = [
+        "+methods.mine._target_=active.methods.ActiveChoice",
+        "+methods.mine.acquisition._target_=my_acq.WorstStepStd",
+        "method=mine",
+        "experiment=tiny",
+        f"dynamics.cache_root={tmp_path / 'cache'}",
+    ]
     cfg = compose_config(overrides)
     from active.run import prepare_run
 
@@ -152,9 +163,16 @@ def test_user_acquisition_plugs_in_by_target(tmp_path, monkeypatch):
     assert type(acq).__name__ == "WorstStepStd"
 
 
-@pytest.mark.parametrize("group,cls", [("alpha", DiscountedMaxUCB), ("lcb", DiscountedMaxLCB),
-                                       ("straddle", TrajectoryStraddle), ("variance", TrajectoryVariance),
-                                       ("thompson", TrajectoryThompson)])
+@pytest.mark.parametrize(
+    "group,cls",
+    [
+        ("alpha", DiscountedMaxUCB),
+        ("lcb", DiscountedMaxLCB),
+        ("straddle", TrajectoryStraddle),
+        ("variance", TrajectoryVariance),
+        ("thompson", TrajectoryThompson),
+    ],
+)
 def test_acquisition_group_builds_each_option_with_the_methods_c(group, cls):
     """configs/acquisition/<group>.yaml is a _partial_ spec; the loop completes it with the model, the
     method's c (where accepted) and d_max = experiment.d_max (where accepted)."""
@@ -178,16 +196,34 @@ def test_default_acquisition_is_the_papers_alpha_and_methods_carry_c():
     from active.methods import METHODS, ActiveChoice, RandomActions, RandomPlan, build_method
     from active.run import compose_config
 
-    assert compose_config([])["acquisition"] == {"_target_": "active.acquisition.DiscountedMaxUCB", "_partial_": True,
-                                                 "gamma": 1.0}
-    assert sorted(METHODS) == ["active_admission", "active_balanced", "active_cautious", "active_mean", "active_straddle",
-                               "active_thompson", "model_plan", "random_actions", "random_plan"]
+    assert compose_config([])["acquisition"] == {
+        "_target_": "active.acquisition.DiscountedMaxUCB",
+        "_partial_": True,
+        "gamma": 1.0,
+    }
+    assert sorted(METHODS) == [
+        "active_admission",
+        "active_balanced",
+        "active_cautious",
+        "active_mean",
+        "active_straddle",
+        "active_thompson",
+        "model_plan",
+        "random_actions",
+        "random_plan",
+    ]
     cs = {m: build_method(m).acquisition for m in METHODS}
-    assert cs == {"random_actions": None, "random_plan": None, "model_plan": None, "active_cautious": {"c": -0.1},
-                  "active_mean": {"c": 0.0}, "active_balanced": {"c": 0.1},
-                  "active_straddle": {"_target_": "active.acquisition.TrajectoryStraddle", "kappa": 1.96, "gamma": 1.0},
-                  "active_thompson": {"_target_": "active.acquisition.TrajectoryThompson", "seed": 0, "gamma": 1.0},
-                  "active_admission": {"_target_": "active.acquisition.TrajectoryAdmissionGain"}}
+    assert cs == {
+        "random_actions": None,
+        "random_plan": None,
+        "model_plan": None,
+        "active_cautious": {"c": -0.1},
+        "active_mean": {"c": 0.0},
+        "active_balanced": {"c": 0.1},
+        "active_straddle": {"_target_": "active.acquisition.TrajectoryStraddle", "kappa": 1.96, "gamma": 1.0},
+        "active_thompson": {"_target_": "active.acquisition.TrajectoryThompson", "seed": 0, "gamma": 1.0},
+        "active_admission": {"_target_": "active.acquisition.TrajectoryAdmissionGain"},
+    }
     assert isinstance(build_method("random_actions"), RandomActions) and not build_method("random_actions").plans
     assert isinstance(build_method("random_plan"), RandomPlan)
     assert isinstance(build_method("active_mean"), ActiveChoice)
@@ -214,12 +250,21 @@ def test_a_method_with_its_own_acquisition_spec_ignores_the_configured_one():
     assert type(paper) is DiscountedMaxUCB and paper.c == 0.1
 
 
-@pytest.mark.parametrize("override,match", [
-    ("+methods.active_straddle.acquisition.c=0.1", r"methods.active_straddle.acquisition: \['c'\] is not a parameter "
-                                                   r"of active.acquisition.TrajectoryStraddle"),
-    ("methods.active_straddle.acquisition._target_=no_such.Acq", r"methods.active_straddle.acquisition._target_ = "
-                                                                  r"'no_such.Acq' cannot be imported"),
-])
+@pytest.mark.parametrize(
+    "override,match",
+    [
+        (
+            "+methods.active_straddle.acquisition.c=0.1",
+            r"methods.active_straddle.acquisition: \['c'\] is not a parameter "
+            r"of active.acquisition.TrajectoryStraddle",
+        ),
+        (
+            "methods.active_straddle.acquisition._target_=no_such.Acq",
+            r"methods.active_straddle.acquisition._target_ = "
+            r"'no_such.Acq' cannot be imported",
+        ),
+    ],
+)
 def test_a_methods_own_acquisition_spec_is_checked_before_compute(override, match):
     from active.acquisition_factory import acquisition_factory, check_method_acquisition
     from active.experiment import ExperimentConfig
@@ -236,10 +281,14 @@ def test_an_acquisition_key_its_class_does_not_take_is_refused_before_compute():
     from active.acquisition_factory import acquisition_factory
     from active.experiment import ExperimentConfig
 
-    with pytest.raises(ValueError, match=r"acquisition.form = 'lcb': not a parameter of "
-                                         r"active.acquisition.DiscountedMaxUCB; allowed \['c', 'gamma'"):
-        acquisition_factory({"_target_": "active.acquisition.DiscountedMaxUCB", "gamma": 1.0, "form": "lcb"},
-                            ExperimentConfig())
+    with pytest.raises(
+        ValueError,
+        match=r"acquisition.form = 'lcb': not a parameter of "
+        r"active.acquisition.DiscountedMaxUCB; allowed \['c', 'gamma'",
+    ):
+        acquisition_factory(
+            {"_target_": "active.acquisition.DiscountedMaxUCB", "gamma": 1.0, "form": "lcb"}, ExperimentConfig()
+        )
 
 
 def test_an_acquisition_that_fails_numerically_executes_a_random_candidate_recorded():
@@ -313,8 +362,12 @@ def test_admission_gain_by_hand():
     assert acq(both).item() == pytest.approx(want[0] + want[1], abs=1e-8)
     # observing a transition correlated with the admitted point 0 can only risk it: expected gain < 0 there
     K2 = [[4e-4, 3.6e-4], [3.6e-4, 4e-4]]
-    risky = TrajectoryAdmissionGain(KnownJoint([0.02, 0.02], K2, noise=1e-4),
-                                    reference=torch.tensor([[0.0]], dtype=torch.float64), d_max=0.07, beta=2.0)
+    risky = TrajectoryAdmissionGain(
+        KnownJoint([0.02, 0.02], K2, noise=1e-4),
+        reference=torch.tensor([[0.0]], dtype=torch.float64),
+        d_max=0.07,
+        beta=2.0,
+    )
     v = 3.6e-4**2 / (4e-4 + 1e-4)  # v_0 = S_01^2 / (S_11 + noise)
     keep = 0.5 * (1 + erf((0.07 - 2 * sqrt(5e-4 - v) - 0.02) / sqrt(v) / sqrt(2)))  # P(still admitted) ~ 0.88
     gain = risky(torch.tensor([[[1.0]]], dtype=torch.float64)).item()
@@ -349,8 +402,10 @@ def test_admission_method_gets_the_test_beta_d_max_and_the_chunks_candidate_step
 
     cfg = compose_config(["experiment.methods=[active_admission]"])
     make = acquisition_factory(cfg["acquisition"], ExperimentConfig(d_max=0.05, beta_test=3.0))
-    sets = [SimpleNamespace(candidates=[SimpleNamespace(features=np.full((2, 1), k + 2 * j)) for k in range(2)])
-            for j in range(2)] + [None]
+    sets = [
+        SimpleNamespace(candidates=[SimpleNamespace(features=np.full((2, 1), k + 2 * j)) for k in range(2)])
+        for j in range(2)
+    ] + [None]
     ref = _candidate_steps(sets)
     assert ref.shape == (8, 1) and sorted(set(ref[:, 0].tolist())) == [0.0, 1.0, 2.0, 3.0]
     assert _candidate_steps([None]) is None

@@ -10,11 +10,32 @@ from active.ladder import RUNGS, main, table
 @pytest.mark.slow  # compiles its own kernels: about 30-70 s in a fresh clone (CI time)
 def test_tiny_ladder_writes_every_rung(tmp_path, capsys):
     cache = tmp_path / "cache"
-    overrides = ["experiment=tiny", "wandb.mode=disabled", "progress=false", f"dynamics.cache_root={cache}",
-                 "dynamics.progress=false", "dynamics.data.n_batches=1", "dynamics.data.batch_size=2", "dynamics.data.pour_batches=0",
-                 "dynamics.train.max_epochs=5"]
-    main(["--out", str(tmp_path / "ladder"), "--slots", "2", "--thetas", "1.45", "--problems", "2",
-          "--ceiling-trajectories", "5", *overrides])
+    overrides = [
+        "experiment=tiny",
+        "wandb.mode=disabled",
+        "progress=false",
+        f"dynamics.cache_root={cache}",
+        "dynamics.progress=false",
+        "dynamics.data.n_batches=1",
+        "dynamics.data.batch_size=2",
+        "dynamics.data.pour_batches=0",
+        "dynamics.train.max_epochs=5",
+    ]
+    main(
+        [
+            "--out",
+            str(tmp_path / "ladder"),
+            "--slots",
+            "2",
+            "--thetas",
+            "1.45",
+            "--problems",
+            "2",
+            "--ceiling-trajectories",
+            "5",
+            *overrides,
+        ]
+    )
     res = json.loads((tmp_path / "ladder" / "ladder.json").read_text())
     rep = res["reproducibility"]
     assert len(rep["pours"]) == 1
@@ -44,14 +65,40 @@ def test_tiny_ladder_writes_every_rung(tmp_path, capsys):
 
     with np.load(data) as f:
         assert str(f["plant_on_contact"]) == "stuck"  # the world it was made in (checked when reused)
-    main(["--out", str(tmp_path / "again"), "--rungs", "ceiling", "--problems", "2", "--ceiling-data", str(data),
-          *overrides])
+    main(
+        [
+            "--out",
+            str(tmp_path / "again"),
+            "--rungs",
+            "ceiling",
+            "--problems",
+            "2",
+            "--ceiling-data",
+            str(data),
+            *overrides,
+        ]
+    )
     again = json.loads((tmp_path / "again" / "ladder.json").read_text())["ceiling"]
     assert again["train_transitions"] == ceil["train_transitions"]
     assert again["precondition_on_train"] == ceil["precondition_on_train"]
     # --ceiling-seeds: one training set and test set per seed, each saved; the mean over them
-    main(["--out", str(tmp_path / "seeds"), "--rungs", "ceiling", "--problems", "2", "--ceiling-trajectories", "3",
-          "--ceiling-seeds", "0", "1", "--", *overrides])
+    main(
+        [
+            "--out",
+            str(tmp_path / "seeds"),
+            "--rungs",
+            "ceiling",
+            "--problems",
+            "2",
+            "--ceiling-trajectories",
+            "3",
+            "--ceiling-seeds",
+            "0",
+            "1",
+            "--",
+            *overrides,
+        ]
+    )
     many = json.loads((tmp_path / "seeds" / "ladder.json").read_text())["ceiling"]
     assert many["seeds"] == [0, 1] and [r["seed"] for r in many["per_seed"]] == [0, 1]
     assert "problems" not in many and all(len(r["problems"]) == 2 for r in many["per_seed"])
@@ -81,7 +128,9 @@ def test_unknown_rung_is_refused_before_compute(tmp_path):
 
 
 def test_table_marks_targets():
-    text = table({"reproducibility": {"max_std": 0.02, "pours": []}, "source_model_only": {"found": 0.95, "success": 0.5}})
+    text = table(
+        {"reproducibility": {"max_std": 0.02, "pours": []}, "source_model_only": {"found": 0.95, "success": 0.5}}
+    )
     lines = {l.split()[0]: l for l in text.splitlines()}
     assert lines["reproducibility.max_std"].endswith("NO")
     assert lines["source_model_only.found"].endswith("yes")
@@ -95,8 +144,16 @@ def test_model_only_rungs_over_several_models_report_mean_range_and_each_model()
     from active.ladder import _mean_over
 
     def rec(seed, found, success, err):
-        return {"model_seed": seed, "n": 30, "found": found, "success": success, "mean_abs_goal_error": err,
-                "categories": {"successful_pour": 1}, "spill_over_limit": 0, "plan_seconds": 10.0}
+        return {
+            "model_seed": seed,
+            "n": 30,
+            "found": found,
+            "success": success,
+            "mean_abs_goal_error": err,
+            "categories": {"successful_pour": 1},
+            "spill_over_limit": 0,
+            "plan_seconds": 10.0,
+        }
 
     rows = [rec(0, 0.9, 0.4, 0.06), rec(1, 0.8, 0.2, None)]
     out = _mean_over(rows, "model_seed")
@@ -114,8 +171,13 @@ def test_ceiling_subset_keeps_half_plans_half_random_actions():
 
     from active.ladder import ceiling_subset
 
-    d = {"s": np.arange(10.0)[:, None] * np.ones((1, 5)), "a": np.zeros((10, 3)), "s_next": np.zeros((10, 5)),
-         "trajectory": np.array([0, 0, 1, 2, 2, 3, 4, 5, 5, 7]), "category": np.array(list("abcdefgh"))}
+    d = {
+        "s": np.arange(10.0)[:, None] * np.ones((1, 5)),
+        "a": np.zeros((10, 3)),
+        "s_next": np.zeros((10, 5)),
+        "trajectory": np.array([0, 0, 1, 2, 2, 3, 4, 5, 5, 7]),
+        "category": np.array(list("abcdefgh")),
+    }
     r = ceiling_subset(d, 4)  # plans 0, 1 and random-action trajectories 4, 5 of 8
     np.testing.assert_array_equal(r["trajectory"], [0, 0, 1, 2, 3, 3])
     np.testing.assert_array_equal(r["category"], list("abef"))
@@ -134,8 +196,15 @@ def test_ceiling_over_several_training_sets_reports_mean_range_and_each_set():
     from active.ladder import _mean_over
 
     def rec(seed, found, success):
-        return {"seed": seed, "train_trajectories": 128, "n": 30, "found": found, "success": success,
-                "precondition_on_train": {}, "plan_seconds": 5.0}
+        return {
+            "seed": seed,
+            "train_trajectories": 128,
+            "n": 30,
+            "found": found,
+            "success": success,
+            "precondition_on_train": {},
+            "plan_seconds": 5.0,
+        }
 
     rows = [rec(0, 0.1, 0.0), rec(1, 0.6, 0.47), rec(2, 0.2, 0.05)]
     out = _mean_over(rows, "seed")
@@ -174,8 +243,11 @@ def test_a_saved_ceiling_set_made_under_another_plant_contact_is_refused(tmp_pat
     from active.ladder import check_ceiling_data
 
     stop_set = Path(__file__).parents[1] / "data" / "ceiling_sets" / "stop_seed0.npz"
-    with pytest.raises(SystemExit, match=r"made with world.plant.on_contact=stop, but the run has "
-                                         r"world.plant.on_contact=stuck"):
+    with pytest.raises(
+        SystemExit,
+        match=r"made with world.plant.on_contact=stop, but the run has "
+        r"world.plant.on_contact=stuck",
+    ):
         main(["--out", str(tmp_path / "x"), "--rungs", "ceiling", "--ceiling-data", str(stop_set)])
     assert not (tmp_path / "x").exists()
     check_ceiling_data(stop_set, "stop")

@@ -34,16 +34,20 @@ def _default_dynamics_ships() -> bool:
 
     cfg = compose_config(["experiment=tiny"])
     members = single_models(train_mod._as_config(cfg["dynamics"]))
-    return all(train_mod.shipped_model_path(cache_paths(m, None, cfg["world"])["model_hash"]).is_file()
-               for m in members)
+    return all(
+        train_mod.shipped_model_path(cache_paths(m, None, cfg["world"])["model_hash"]).is_file() for m in members
+    )
 
 
 def _overrides(cache: Path, *extra: str) -> list[str]:
     """The tiny experiment, one method, planning in-process (``planner.workers=1``: a monkeypatched planner acts)."""
     tiny = tiny_overrides(cache)
     if _default_dynamics_ships():  # the shipped members are copied into the cache: nothing to simulate or train
-        tiny = [o for o in tiny if not o.startswith("dynamics.")
-                or o.split("=")[0] in ("dynamics.cache_root", "dynamics.progress")]
+        tiny = [
+            o
+            for o in tiny
+            if not o.startswith("dynamics.") or o.split("=")[0] in ("dynamics.cache_root", "dynamics.progress")
+        ]
     return tiny + ["planner.workers=1", f"method={METHOD}", *extra]
 
 
@@ -123,8 +127,11 @@ def test_a_planner_call_that_raises_is_a_plan_not_found_and_the_run_goes_on(cach
     assert [int(r["iteration"]) for r in rows] == [1, 2]  # the run went on to its end
     it = next(int(r["iteration"]) for r in rows if float(r["beta"]) == beta)  # the iteration that planned with beta
     assert [int(r["plan_errors"]) for r in rows] == [int(i == it) for i in (1, 2)]
-    mine = [c for c in read_csv(out / METHOD / "categories.csv")
-            if int(c["iteration"]) == it and float(c["goal"]) == round(goal, 4)]
+    mine = [
+        c
+        for c in read_csv(out / METHOD / "categories.csv")
+        if int(c["iteration"]) == it and float(c["goal"]) == round(goal, 4)
+    ]
     assert len(mine) == 1
     assert int(mine[0]["n_candidates"]) == found_after  # the failed run counts as a run that found nothing
     if found_after == 0:  # it was the set's only plan: the problem fell back to random actions
@@ -137,8 +144,9 @@ def test_lockstep_over_two_seeds_resumes_to_more_iterations_with_the_straight_re
     """runner=lockstep, seeds [0, 1]: a run of 1 iteration (as a run killed once its first iteration is saved),
     rerun in the same folder with 2 iterations, resumes each seed at iteration 2 (iteration 1 is kept as it was
     written, its timings included) and ends with the results of a straight 2-iteration run (timings aside)."""
-    over = _overrides(cache, "runner=lockstep", "seeds=[0,1]", "experiment.trajectories_per_iteration=1",
-                      "experiment.test_problems=1")
+    over = _overrides(
+        cache, "runner=lockstep", "seeds=[0,1]", "experiment.trajectories_per_iteration=1", "experiment.test_problems=1"
+    )
     straight = tmp_path / "straight"
     run_experiment(compose_config(over), straight)
     out = tmp_path / "resumed"

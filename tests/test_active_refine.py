@@ -35,14 +35,22 @@ def test_plans_without_a_usable_pour_are_left_alone():
 def test_a_pour_that_cannot_be_simulated_is_recorded_not_raised():
     world = WorldConfig.load()
     tx = world.target_pose()[0]
-    inside_target = _plan([[1, 1.5, 0.5]], [[tx + 0.07, 0.07, 0, 1, 0], [tx + 0.07, 0.07, 0, 0.2, 0.8]])  # overlaps the target cup
+    inside_target = _plan(
+        [[1, 1.5, 0.5]], [[tx + 0.07, 0.07, 0, 1, 0], [tx + 0.07, 0.07, 0, 0.2, 0.8]]
+    )  # overlaps the target cup
     res = refine_plans(world, [inside_target], [0.6], steps=1, progress=False)
     assert not res.refined[0] and "refinement failed" in res.skipped[0] and "overlaps" in res.skipped[0]
     np.testing.assert_array_equal(res.actions[0], inside_target.actions)
 
 
-@pytest.mark.parametrize("kwargs, match", [({"refine_steps": -1}, "refine_steps"), ({"refine_lr": 0.0}, "refine_lr"),
-                                           ({"known_obstacles": "yes"}, "known_obstacles")])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"refine_steps": -1}, "refine_steps"),
+        ({"refine_lr": 0.0}, "refine_lr"),
+        ({"known_obstacles": "yes"}, "known_obstacles"),
+    ],
+)
 def test_experiment_refine_options_are_validated(kwargs, match):
     with pytest.raises(ValueError, match=match):
         ExperimentConfig.from_mapping(kwargs)

@@ -20,14 +20,23 @@ def test_mean_ci_matches_student_t_by_hand():
 
 
 def _write_run(d, method, seed, success):
-    rows = [{"method": method, "seed": seed, "iteration": i + 1, "test_success": s, "test_plan_found": min(1, s + 0.1)}
-            for i, s in enumerate(success)]
+    rows = [
+        {"method": method, "seed": seed, "iteration": i + 1, "test_success": s, "test_plan_found": min(1, s + 0.1)}
+        for i, s in enumerate(success)
+    ]
     write_csv(d / "results.csv", rows)
-    cats = [{"method": method, "seed": seed, "iteration": 1, "category": c}
-            for c in ["successful_pour", "other", "stuck_in_plant", "successful_pour"]]
+    cats = [
+        {"method": method, "seed": seed, "iteration": 1, "category": c}
+        for c in ["successful_pour", "other", "stuck_in_plant", "successful_pour"]
+    ]
     write_csv(d / "categories.csv", cats)
-    write_csv(d / "calibration.csv", [{"method": method, "seed": seed, "iteration": i + 1, "coverage95": 0.9, "nll": -1.0}
-                                      for i in range(len(success))])
+    write_csv(
+        d / "calibration.csv",
+        [
+            {"method": method, "seed": seed, "iteration": i + 1, "coverage95": 0.9, "nll": -1.0}
+            for i in range(len(success))
+        ],
+    )
 
 
 def test_report_aggregates_seeds_and_methods(tmp_path):
@@ -63,15 +72,20 @@ def test_learning_curve_legend_names_each_methods_seed_count(tmp_path, monkeypat
 def test_trajectory_type_table_counts_per_iteration_and_overall(tmp_path):
     from active.report import trajectory_type_table
 
-    rows = [{"method": "m", "seed": "0", "iteration": "1", "category": c}
-            for c in ["successful_pour", "stuck_in_plant", "stuck_in_plant", "mystery"]]
-    rows += [{"method": "m", "seed": "1", "iteration": "2", "category": c} for c in ["unsuccessful_pour", "successful_pour"]]
+    rows = [
+        {"method": "m", "seed": "0", "iteration": "1", "category": c}
+        for c in ["successful_pour", "stuck_in_plant", "stuck_in_plant", "mystery"]
+    ]
+    rows += [
+        {"method": "m", "seed": "1", "iteration": "2", "category": c} for c in ["unsuccessful_pour", "successful_pour"]
+    ]
     table = {r["iteration"]: r for r in trajectory_type_table(rows)}
     assert list(table) == ["1", "2", "all"]
     assert table["1"]["n"] == 4 and table["1"]["stuck_in_plant"] == 0.5 and table["1"]["other"] == 0.25
     assert table["all"]["n"] == 6 and table["all"]["successful_pour"] == pytest.approx(2 / 6, abs=1e-4)
-    assert sum(table["all"][c] for c in ("successful_pour", "unsuccessful_pour", "stuck_in_plant", "other")) \
-        == pytest.approx(1.0, abs=1e-3)
+    assert sum(
+        table["all"][c] for c in ("successful_pour", "unsuccessful_pour", "stuck_in_plant", "other")
+    ) == pytest.approx(1.0, abs=1e-3)
     _write_run(tmp_path / "a", "active_balanced", 0, [0.2, 0.6])
     report([tmp_path], tmp_path / "rep")
     csv_all = [r for r in read_csv(tmp_path / "rep" / "trajectory_types.csv") if r["iteration"] == "all"]
@@ -85,17 +99,31 @@ def test_report_without_results_says_so(tmp_path):
 
 
 def _rows(method, seed, success, found):
-    return [{"method": method, "seed": str(seed), "iteration": str(i + 1), "test_success": str(s),
-             "test_plan_found": str(f)} for i, (s, f) in enumerate(zip(success, found))]
+    return [
+        {
+            "method": method,
+            "seed": str(seed),
+            "iteration": str(i + 1),
+            "test_success": str(s),
+            "test_plan_found": str(f),
+        }
+        for i, (s, f) in enumerate(zip(success, found))
+    ]
 
 
 def test_paired_differences_match_student_t_and_ignore_unpaired_seeds():
     # AUCs (mean over 2 iterations): A success 0.5, 0.6, 0.9 on seeds 0-2; B success 0.3, 0.5, 0.5.
     # Seed 3 only for A, seed 9 only for B: both must be ignored.
-    rows = (_rows("A", 0, [0.4, 0.6], [1, 1]) + _rows("A", 1, [0.5, 0.7], [1, 1]) + _rows("A", 2, [0.8, 1.0], [1, 1])
-            + _rows("A", 3, [1.0, 1.0], [1, 1])
-            + _rows("B", 0, [0.2, 0.4], [0.5, 0.5]) + _rows("B", 1, [0.5, 0.5], [1, 1])
-            + _rows("B", 2, [0.4, 0.6], [0.5, 1]) + _rows("B", 9, [0.0, 0.0], [0, 0]))
+    rows = (
+        _rows("A", 0, [0.4, 0.6], [1, 1])
+        + _rows("A", 1, [0.5, 0.7], [1, 1])
+        + _rows("A", 2, [0.8, 1.0], [1, 1])
+        + _rows("A", 3, [1.0, 1.0], [1, 1])
+        + _rows("B", 0, [0.2, 0.4], [0.5, 0.5])
+        + _rows("B", 1, [0.5, 0.5], [1, 1])
+        + _rows("B", 2, [0.4, 0.6], [0.5, 1])
+        + _rows("B", 9, [0.0, 0.0], [0, 0])
+    )
     pairs, seeds = paired(rows, reference="B")
     assert len(pairs) == 1
     r = pairs[0]
@@ -145,8 +173,11 @@ def test_report_writes_paired_table_and_flags_one_seed(tmp_path):
 def test_unknown_reference_is_refused_before_plotting(tmp_path):
     _write_run(tmp_path / "a", "active_balanced", 0, [0.2, 0.6])
     _write_run(tmp_path / "b", "random_plan", 0, [0.0, 0.2])
-    with pytest.raises(ValueError, match=r"'random_actions' is not among the methods found: "
-                                         r"\['active_balanced', 'random_plan'\]"):
+    with pytest.raises(
+        ValueError,
+        match=r"'random_actions' is not among the methods found: "
+        r"\['active_balanced', 'random_plan'\]",
+    ):
         report([tmp_path], tmp_path / "rep", reference="random_actions")
     assert not (tmp_path / "rep").exists()
     with pytest.raises(SystemExit, match="random_actions"):
@@ -176,9 +207,18 @@ def test_ceiling_line_on_success_and_plan_found_panels(tmp_path):
 
 def test_ceiling_over_several_training_sets_is_labelled_as_their_mean(tmp_path):
     """`--ceiling-seeds 0 1 2`: the line is the mean of three sets, and the summary gives their range."""
-    made, md = _report_with_ceiling(tmp_path, {"train_trajectories": 128, "n": 30, "found": 0.24, "success": 0.2,
-                                               "seeds": [0, 1, 2], "found_range": [0.07, 0.37],
-                                               "success_range": [0.07, 0.3]})
+    made, md = _report_with_ceiling(
+        tmp_path,
+        {
+            "train_trajectories": 128,
+            "n": 30,
+            "found": 0.24,
+            "success": 0.2,
+            "seeds": [0, 1, 2],
+            "found_range": [0.07, 0.37],
+            "success_range": [0.07, 0.3],
+        },
+    )
     label = "ceiling (MDE on 128 trajectories, mean of 3 sets)"
     assert made["ceiling_lines"] == {"test_success": (0.2, label), "test_plan_found": (0.24, label)}
     assert "the mean of 3 training sets, each on 30 test problems, success 0.07-0.30, found 0.07-0.37" in md
@@ -201,24 +241,39 @@ def test_ladder_without_ceiling_is_refused(tmp_path):
 def _write_model_only(d, seed, reached, found):
     """A seed's model_only.csv (active.baseline): one row per test problem."""
     d.mkdir(parents=True, exist_ok=True)
-    write_csv(d / "model_only.csv", [{"seed": seed, "problem": k, "goal": 0.4, "found": f, "goal_reached": r,
-                                      "category": "", "final_spill": "", "digest": "x"}
-                                     for k, (r, f) in enumerate(zip(reached, found))])
+    write_csv(
+        d / "model_only.csv",
+        [
+            {
+                "seed": seed,
+                "problem": k,
+                "goal": 0.4,
+                "found": f,
+                "goal_reached": r,
+                "category": "",
+                "final_spill": "",
+                "digest": "x",
+            }
+            for k, (r, f) in enumerate(zip(reached, found))
+        ],
+    )
 
 
 def test_model_alone_is_a_line_and_a_paired_reference(tmp_path):
     """model_only.csv beside the runs: its success and found rates, mean over seeds, as dotted lines; each
     method's AUC minus the model alone's rate, paired over the seeds that have both."""
-    _write_run(tmp_path / "s0" / "ab", "active_balanced", 0, [0.2, 0.6])   # AUC 0.4
-    _write_run(tmp_path / "s1" / "ab", "active_balanced", 1, [0.4, 0.8])   # AUC 0.6
-    _write_run(tmp_path / "s0" / "rp", "random_plan", 0, [0.0, 0.2])       # AUC 0.1
+    _write_run(tmp_path / "s0" / "ab", "active_balanced", 0, [0.2, 0.6])  # AUC 0.4
+    _write_run(tmp_path / "s1" / "ab", "active_balanced", 1, [0.4, 0.8])  # AUC 0.6
+    _write_run(tmp_path / "s0" / "rp", "random_plan", 0, [0.0, 0.2])  # AUC 0.1
     _write_model_only(tmp_path / "s0", 0, [True, False, False, False], [True, True, False, False])  # 0.25 / 0.5
-    _write_model_only(tmp_path / "s1", 1, [True, True, False, False], [True, True, True, True])     # 0.5 / 1.0
+    _write_model_only(tmp_path / "s1", 1, [True, True, False, False], [True, True, True, True])  # 0.5 / 1.0
     _write_model_only(tmp_path / "s1" / "again", 1, [True, True, False, False], [True] * 4)  # another job's copy
     made = report([tmp_path], tmp_path / "rep")
     label = "model alone (no MDE) ± 95% CI"
-    assert made["ceiling_lines"] == {"model_only:test_success": (pytest.approx(0.375), label),
-                                     "model_only:test_plan_found": (pytest.approx(0.75), label)}
+    assert made["ceiling_lines"] == {
+        "model_only:test_success": (pytest.approx(0.375), label),
+        "model_only:test_plan_found": (pytest.approx(0.75), label),
+    }
     pairs = {r["method"]: r for r in made["paired_model_only"]}
     assert pairs["active_balanced"]["paired_seeds"] == 2
     assert pairs["active_balanced"]["diff_auc_success"] == pytest.approx(((0.4 - 0.25) + (0.6 - 0.5)) / 2)
@@ -241,9 +296,21 @@ def test_no_model_only_file_no_line(tmp_path):
 
 def _write_tests(d, method, seed, outcomes):
     """tests.csv of one run: ``outcomes`` per iteration, one (found, goal_reached, category) per problem."""
-    rows = [{"method": method, "seed": seed, "iteration": it + 1, "problem": k, "goal": 0.4, "found": f,
-             "goal_reached": g, "category": c, "final_spill": 0.0 if f else ""}
-            for it, probs in enumerate(outcomes) for k, (f, g, c) in enumerate(probs)]
+    rows = [
+        {
+            "method": method,
+            "seed": seed,
+            "iteration": it + 1,
+            "problem": k,
+            "goal": 0.4,
+            "found": f,
+            "goal_reached": g,
+            "category": c,
+            "final_spill": 0.0 if f else "",
+        }
+        for it, probs in enumerate(outcomes)
+        for k, (f, g, c) in enumerate(probs)
+    ]
     write_csv(d / "tests.csv", rows)
 
 
@@ -251,7 +318,11 @@ def test_test_outcomes_table_figure_and_summary(tmp_path):
     """tests.csv beside the runs: per method and iteration the share of each outcome (a found plan's failure
     by its trajectory category), over seeds; the model alone's outcomes beside them; a row seen twice counts once."""
     ok, miss = (True, True, "successful_pour"), (False, False, "")
-    stuck, spill, short = (True, False, "stuck_in_plant"), (True, False, "unsuccessful_pour"), (True, False, "successful_pour")
+    stuck, spill, short = (
+        (True, False, "stuck_in_plant"),
+        (True, False, "unsuccessful_pour"),
+        (True, False, "successful_pour"),
+    )
     _write_run(tmp_path / "s0" / "ab", "active_balanced", 0, [0.5, 0.5])
     _write_tests(tmp_path / "s0" / "ab", "active_balanced", 0, [[ok, miss], [ok, stuck]])
     _write_run(tmp_path / "s1" / "ab", "active_balanced", 1, [0.0, 0.5])
@@ -298,8 +369,20 @@ def test_each_method_has_one_colour_in_every_figure_and_curves_run_over_trajecto
         for k, m in enumerate(methods):
             d = out / m
             d.mkdir(parents=True)
-            write_csv(d / "results.csv", [{"method": m, "seed": 0, "iteration": i + 1, "n_trajectories": 6 * (i + 1),
-                                           "test_success": 0.1 * k, "test_plan_found": 0.5} for i in range(3)])
+            write_csv(
+                d / "results.csv",
+                [
+                    {
+                        "method": m,
+                        "seed": 0,
+                        "iteration": i + 1,
+                        "n_trajectories": 6 * (i + 1),
+                        "test_success": 0.1 * k,
+                        "test_plan_found": 0.5,
+                    }
+                    for i in range(3)
+                ],
+            )
         figures.clear()
         report([out], out / "rep")
         ax = figures[0].axes[0]
@@ -330,14 +413,25 @@ def test_runs_of_one_method_with_different_configurations_are_refused(tmp_path):
     run("default1", ["method=random_plan"], 1)
     assert report([tmp_path / "default0", tmp_path / "default1"], tmp_path / "ok")["summary"][0]["seeds"] == 2
     run("ablation", ["mde.label_max=0.15"], 2)
-    with pytest.raises(ReportError, match=r"random_plan: runs of different configurations .*mde.label_max: 0.15 vs 0.1"):
+    with pytest.raises(
+        ReportError, match=r"random_plan: runs of different configurations .*mde.label_max: 0.15 vs 0.1"
+    ):
         report([tmp_path], tmp_path / "rep")
 
 
 def test_p_values_below_a_thousandth_are_written_as_such():
     from active.report import paired_table
 
-    row = {"method": "a", "reference": "b", "paired_seeds": 40, "diff_auc_success": 0.1, "diff_auc_success_ci95": 0.02,
-           "p_success": 1e-6, "diff_auc_plan_found": 0.0, "diff_auc_plan_found_ci95": 0.01, "p_plan_found": 0.5}
+    row = {
+        "method": "a",
+        "reference": "b",
+        "paired_seeds": 40,
+        "diff_auc_success": 0.1,
+        "diff_auc_success_ci95": 0.02,
+        "p_success": 1e-6,
+        "diff_auc_plan_found": 0.0,
+        "diff_auc_plan_found_ci95": 0.01,
+        "p_plan_found": 0.5,
+    }
     text = "\n".join(paired_table([row]))
     assert "| < 0.001 |" in text and "| 0.000 |" not in text

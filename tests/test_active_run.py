@@ -26,9 +26,17 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def tiny_overrides(cache: Path) -> list[str]:
-    return ["experiment=tiny", "wandb.mode=disabled", "progress=false", f"dynamics.cache_root={cache}",
-            "dynamics.progress=false", "dynamics.data.n_batches=1", "dynamics.data.batch_size=2", "dynamics.data.pour_batches=0",
-            "dynamics.train.max_epochs=5"]
+    return [
+        "experiment=tiny",
+        "wandb.mode=disabled",
+        "progress=false",
+        f"dynamics.cache_root={cache}",
+        "dynamics.progress=false",
+        "dynamics.data.n_batches=1",
+        "dynamics.data.batch_size=2",
+        "dynamics.data.pour_batches=0",
+        "dynamics.train.max_epochs=5",
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -102,14 +110,29 @@ def wheel_python(tmp_path_factory) -> str:
     for name in (p.rstrip("*") for p in packages):
         shutil.copytree(REPO / name, src / name, ignore=shutil.ignore_patterns("__pycache__"))
     quiet = dict(check=True, capture_output=True, text=True)
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w",
-                    str(wheels), str(src)], cwd=src, **quiet)
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(src)],
+        cwd=src,
+        **quiet,
+    )
     # the wheel into a folder of its own, ahead of everything else on the path of this very interpreter: the
     # dependencies are this environment's (a virtual environment, a conda environment or the system
     # interpreter), the project's packages the wheel's (a venv made from here would see the base interpreter's)
     site = venv / "site-packages"
-    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(site),
-                    *map(str, wheels.glob("*.whl"))], **quiet)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "-q",
+            "--no-deps",
+            "--target",
+            str(site),
+            *map(str, wheels.glob("*.whl")),
+        ],
+        **quiet,
+    )
     py = venv / "bin" / "python"
     py.parent.mkdir(parents=True)
     py.write_text(f'#!/bin/sh\nPYTHONPATH="{site}" exec "{sys.executable}" "$@"\n')
@@ -131,13 +154,21 @@ def test_a_built_wheel_finds_its_configs_and_shipped_files_outside_the_repositor
     work.mkdir()
     quiet = dict(check=True, capture_output=True, text=True, env=_wheel_env(), cwd=work)
     venv = str(Path(wheel_python).parents[1])
-    where = subprocess.run([wheel_python, "-c", "import active, configs, dynamics.train as s; print(active.__file__); "
-                            "print(configs.CONFIG_DIR); print(s.SHIPPED_DIR)"], **quiet).stdout.split()
+    where = subprocess.run(
+        [
+            wheel_python,
+            "-c",
+            "import active, configs, dynamics.train as s; print(active.__file__); "
+            "print(configs.CONFIG_DIR); print(s.SHIPPED_DIR)",
+        ],
+        **quiet,
+    ).stdout.split()
     assert len(where) == 3 and all(w.startswith(venv) for w in where), where  # the wheel, not the checkout
     shipped = sorted(p.name for p in Path(where[2]).glob("*.pt"))
     assert shipped == sorted(p.name for p in (REPO / "dynamics" / "shipped").glob("*.pt")), shipped
-    job = subprocess.run([wheel_python, "-m", "active.run", *tiny_overrides(cache), "--cfg", "job", "--resolve"],
-                         **quiet).stdout
+    job = subprocess.run(
+        [wheel_python, "-m", "active.run", *tiny_overrides(cache), "--cfg", "job", "--resolve"], **quiet
+    ).stdout
     want = compose_config(tiny_overrides(cache))
     assert f"iterations: {want['experiment']['iterations']}" in job and str(cache) in job
 
@@ -149,8 +180,14 @@ def test_a_built_wheel_runs_the_tiny_experiment_outside_the_repository(cache, st
     work = tmp_path / "elsewhere"
     work.mkdir()
     out = tmp_path / "run"
-    subprocess.run([wheel_python, "-m", "active.run", *tiny_overrides(cache), f"hydra.run.dir={out}"], cwd=work,
-                   env=_wheel_env(), check=True, capture_output=True, text=True)
+    subprocess.run(
+        [wheel_python, "-m", "active.run", *tiny_overrides(cache), f"hydra.run.dir={out}"],
+        cwd=work,
+        env=_wheel_env(),
+        check=True,
+        capture_output=True,
+        text=True,
+    )
     for method in ("active_balanced", "random_actions"):
         assert _comparable(out / method / "results.csv") == _comparable(straight / method / "results.csv")
     assert (out / "report" / "learning_curves.png").stat().st_size > 0
@@ -226,12 +263,15 @@ def test_lockstep_over_methods_and_seeds_gives_the_results_of_each_run_alone(cac
     assert json.loads((out / "seed3" / "config.json").read_text())["seed"] == 3
 
 
-@pytest.mark.parametrize("override,match", [
-    ("runner=parallel", r"runner = 'parallel': allowed one of \('sequential', 'lockstep'\)"),
-    ("seeds=[0,0]", r"seeds = \[0, 0\]: allowed each seed at most once"),
-    ("seeds=[1,-2]", r"seeds\[1\] = -2: allowed an integer"),
-    ("seeds=[]", r"seeds = \[\]: allowed null"),
-])
+@pytest.mark.parametrize(
+    "override,match",
+    [
+        ("runner=parallel", r"runner = 'parallel': allowed one of \('sequential', 'lockstep'\)"),
+        ("seeds=[0,0]", r"seeds = \[0, 0\]: allowed each seed at most once"),
+        ("seeds=[1,-2]", r"seeds\[1\] = -2: allowed an integer"),
+        ("seeds=[]", r"seeds = \[\]: allowed null"),
+    ],
+)
 def test_runner_and_seeds_errors_before_compute(cache, tmp_path, override, match):
     with pytest.raises(ValueError, match=match):
         run_experiment(compose_config(tiny_overrides(cache) + [override]), tmp_path / "bad")
@@ -272,17 +312,20 @@ def test_a_plan_that_raises_is_recorded_and_the_run_goes_on(cache, straight_run,
     assert "simulated planner failure" in caplog.text
 
 
-@pytest.mark.parametrize("override,match", [
-    ("method=active_bold", "method = 'active_bold': allowed one of"),
-    ("experiment.iterations=0", "experiment.iterations = 0: allowed an integer >= 1"),
-    ("experiment.d_max=0", r"experiment.d_max = 0.*allowed > 0"),
-    ("acquisition.gamma=1.5", r"gamma = 1.5: allowed \(0, 1\]"),
-    ("acquisition._target_=nowhere.Acq", "cannot be imported"),
-    ("+acquisition.form=lcb", r"acquisition.form = 'lcb': not a parameter of active.acquisition.DiscountedMaxUCB"),
-    ("wandb.mode=loud", "wandb.mode"),
-    ("seed=-1", r"^seed = -1: allowed an integer in \[0, 4294967295\]$"),
-    ("world.sim.dx=0.05", r"world.sim.dx = 0.05: too coarse for the geometry.*Allowed: 0 < dx <= 0.01 m"),
-])
+@pytest.mark.parametrize(
+    "override,match",
+    [
+        ("method=active_bold", "method = 'active_bold': allowed one of"),
+        ("experiment.iterations=0", "experiment.iterations = 0: allowed an integer >= 1"),
+        ("experiment.d_max=0", r"experiment.d_max = 0.*allowed > 0"),
+        ("acquisition.gamma=1.5", r"gamma = 1.5: allowed \(0, 1\]"),
+        ("acquisition._target_=nowhere.Acq", "cannot be imported"),
+        ("+acquisition.form=lcb", r"acquisition.form = 'lcb': not a parameter of active.acquisition.DiscountedMaxUCB"),
+        ("wandb.mode=loud", "wandb.mode"),
+        ("seed=-1", r"^seed = -1: allowed an integer in \[0, 4294967295\]$"),
+        ("world.sim.dx=0.05", r"world.sim.dx = 0.05: too coarse for the geometry.*Allowed: 0 < dx <= 0.01 m"),
+    ],
+)
 def test_config_errors_before_compute(cache, tmp_path, override, match):
     cfg = compose_config(tiny_overrides(cache) + [override])
     cached = sorted(cache.rglob("*"))
@@ -334,10 +377,20 @@ def test_result_files_get_the_umask_permissions(straight_run):
     out, _ = straight_run
     expected = 0o666 & ~safeio.current_umask()
     files = [p for p in out.rglob("*") if p.is_file() and "wandb" not in p.parts]
-    assert {p.name for p in files} >= {"config.json", "calibration_set.pt", "results.csv", "state.pt",
-                                       "mde_iter002.pt", "learning_curves.png", "run.lock"}
-    assert {str(p.relative_to(out)): oct(stat.S_IMODE(p.stat().st_mode)) for p in files
-            if stat.S_IMODE(p.stat().st_mode) != expected} == {}
+    assert {p.name for p in files} >= {
+        "config.json",
+        "calibration_set.pt",
+        "results.csv",
+        "state.pt",
+        "mde_iter002.pt",
+        "learning_curves.png",
+        "run.lock",
+    }
+    assert {
+        str(p.relative_to(out)): oct(stat.S_IMODE(p.stat().st_mode))
+        for p in files
+        if stat.S_IMODE(p.stat().st_mode) != expected
+    } == {}
 
 
 def test_refused_rerun_leaves_the_directory_as_it_was(cache, straight_run, tmp_path):
@@ -392,12 +445,23 @@ def test_model_alone_is_measured_once_and_rebuilt_for_another_config(cache, stra
         assert read_csv(out / method / "results.csv") == read_csv(straight_run[0] / method / "results.csv")
 
 
-@pytest.mark.parametrize("name,damage,match", [
-    ("active_balanced/mde_iter002.pt", "truncate", r"mde_iter002.pt is damaged \(its bytes do not match the checksum"),
-    ("random_actions/mde_iter002.pt", "garbage", r"mde_iter002.pt is damaged .*redo this method from iteration 1"),
-    ("calibration_set.pt", "truncate", r"calibration_set.pt is unreadable .*it is rebuilt from the configuration"),
-    ("random_actions/state.pt", "garbage", r"state.pt is unreadable .*results.csv, tests.csv beside it are intact and kept"),
-])
+@pytest.mark.parametrize(
+    "name,damage,match",
+    [
+        (
+            "active_balanced/mde_iter002.pt",
+            "truncate",
+            r"mde_iter002.pt is damaged \(its bytes do not match the checksum",
+        ),
+        ("random_actions/mde_iter002.pt", "garbage", r"mde_iter002.pt is damaged .*redo this method from iteration 1"),
+        ("calibration_set.pt", "truncate", r"calibration_set.pt is unreadable .*it is rebuilt from the configuration"),
+        (
+            "random_actions/state.pt",
+            "garbage",
+            r"state.pt is unreadable .*results.csv, tests.csv beside it are intact and kept",
+        ),
+    ],
+)
 def test_damaged_run_files_are_named_with_the_fix(cache, straight_run, tmp_path, name, damage, match):
     out = _copy_run(straight_run[0], tmp_path / "run")
     path = out / name
@@ -465,8 +529,11 @@ def test_state_of_another_run_format_is_refused_naming_both_versions(cache, stra
     del st["format"], st["version"]  # as the first run format wrote it: a plain torch file without them
     safeio.save_torch(state_path, st)
     before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
-    with pytest.raises(RunFileError, match=rf"run format version 1; this code reads version {RUN_FORMAT_VERSION}"
-                                           r".*hydra\.run\.dir"):
+    with pytest.raises(
+        RunFileError,
+        match=rf"run format version 1; this code reads version {RUN_FORMAT_VERSION}"
+        r".*hydra\.run\.dir",
+    ):
         run_experiment(compose_config(tiny_overrides(cache)), out)
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
 
@@ -498,8 +565,9 @@ def test_model_plan_method_plans_its_candidates_without_the_mde():
     mde = object()  # the run's fitted MDE (only passed on, never called here)
 
     def need_of(method: str) -> PlanNeed:
-        run = SimpleNamespace(ctx=SimpleNamespace(exp=ExperimentConfig(), seed=7), method=method, plan_errors=0,
-                              spec=build_method(method))
+        run = SimpleNamespace(
+            ctx=SimpleNamespace(exp=ExperimentConfig(), seed=7), method=method, plan_errors=0, spec=build_method(method)
+        )
         return next(MethodRun._plan_chunk(run, probs, mde, 2, 0, 1.0))
 
     mine, theirs = need_of("model_plan"), need_of("random_plan")
@@ -527,16 +595,22 @@ def test_model_plan_fallback_replaces_refused_rounds_by_plans_of_the_model_alone
     choices = [Choice(rand, "fallback", 0), Choice(np.ones((2, 3)), "plan", 5), Choice(rand, "fallback", 0)]
 
     def drive(fallback: str, found: list[bool]):
-        run = SimpleNamespace(ctx=SimpleNamespace(exp=ExperimentConfig(fallback=fallback), seed=7),
-                              method="random_plan", plan_errors=0)
+        run = SimpleNamespace(
+            ctx=SimpleNamespace(exp=ExperimentConfig(fallback=fallback), seed=7), method="random_plan", plan_errors=0
+        )
         gen = MethodRun._plan_fallbacks(run, probs, choices, 3, 6)
         try:
             need = next(gen)
         except StopIteration as done:
             return None, done.value
-        plans = [SimpleNamespace(found=f, stats=SimpleNamespace(termination="found" if f else "budget"),
-                                 trajectory=SimpleNamespace(actions=np.full((3, 3), k)) if f else None)
-                 for k, f in enumerate(found)]
+        plans = [
+            SimpleNamespace(
+                found=f,
+                stats=SimpleNamespace(termination="found" if f else "budget"),
+                trajectory=SimpleNamespace(actions=np.full((3, 3), k)) if f else None,
+            )
+            for k, f in enumerate(found)
+        ]
         try:
             gen.send(plans)
         except StopIteration as done:
@@ -552,7 +626,9 @@ def test_model_plan_fallback_replaces_refused_rounds_by_plans_of_the_model_alone
     assert out[2].actions is rand and [c.source for c in choices] == ["fallback", "plan", "fallback"]  # input untouched
     need, out = drive("random_actions", [])
     assert need is None and out is choices
-    with pytest.raises(ValueError, match=r"experiment.fallback = 'plans': allowed one of \('random_actions', 'model_plan'\)"):
+    with pytest.raises(
+        ValueError, match=r"experiment.fallback = 'plans': allowed one of \('random_actions', 'model_plan'\)"
+    ):
         ExperimentConfig(fallback="plans").validate()
 
 
@@ -595,10 +671,12 @@ def test_run_folders_carry_the_result_changing_overrides():
     from active.run import hydra_run_dir
 
     assert hydra_run_dir([]) == Path("outputs/quick/all/seed0")
-    assert hydra_run_dir(["mde.label_max=0.15", "seed=3", "planner.workers=2", "progress=false"]) == \
-        Path("outputs/quick/mde.label_max=0.15/all/seed3")
-    assert hydra_run_dir(["experiment=paper", "seeds=[0,1]", "method=random_plan"]) == \
-        Path("outputs/paper/random_plan/seeds0-1")
+    assert hydra_run_dir(["mde.label_max=0.15", "seed=3", "planner.workers=2", "progress=false"]) == Path(
+        "outputs/quick/mde.label_max=0.15/all/seed3"
+    )
+    assert hydra_run_dir(["experiment=paper", "seeds=[0,1]", "method=random_plan"]) == Path(
+        "outputs/paper/random_plan/seeds0-1"
+    )
     assert hydra_run_dir(["-m", "seed=0,1"]) is None  # a sweep's folders are Hydra's (sweep.subdir, the same parts)
 
 
@@ -618,13 +696,15 @@ def test_derived_files_are_rewritten_from_the_state_and_a_damaged_checkpoint_is_
     results = out / "random_actions" / "results.csv"
     results.write_bytes(results.read_bytes()[:-20])
     rows = (out / "active_balanced" / "results.csv").read_text().splitlines()
-    (out / "active_balanced" / "results.csv").write_text("\n".join(rows[:1] + [rows[1].replace("0.", "9.", 1)] + rows[2:]))
+    (out / "active_balanced" / "results.csv").write_text(
+        "\n".join(rows[:1] + [rows[1].replace("0.", "9.", 1)] + rows[2:])
+    )
     run_experiment(compose_config(tiny_overrides(cache)), out)
     for method in ("active_balanced", "random_actions"):
         assert read_csv(out / method / "results.csv") == read_csv(straight_run[0] / method / "results.csv")
     ckpt = out / "active_balanced" / "mde_iter002.pt"
     raw = bytearray(ckpt.read_bytes())
-    raw[len(raw) // 2: len(raw) // 2 + 64] = bytes(64)
+    raw[len(raw) // 2 : len(raw) // 2 + 64] = bytes(64)
     ckpt.write_bytes(bytes(raw))
     with pytest.raises(RunFileError, match=rf"{ckpt} is damaged"):
         run_experiment(compose_config(tiny_overrides(cache)), out)

@@ -14,8 +14,15 @@ def test_a_resumed_run_continues_the_same_wandb_run(tmp_path, monkeypatch):
     monkeypatch.setenv("WANDB_MODE", "offline")
     ids = []
     for step in (1, 2):
-        t = Tracker("offline", "active-mde-test", "quick-random_plan-seed0", {"seed": 0}, tmp_path,
-                    group="quick-random_plan", run_id="0123456789abcdef-random_plan-seed0")
+        t = Tracker(
+            "offline",
+            "active-mde-test",
+            "quick-random_plan-seed0",
+            {"seed": 0},
+            tmp_path,
+            group="quick-random_plan",
+            run_id="0123456789abcdef-random_plan-seed0",
+        )
         assert t.run is not None, "W&B could not start offline"
         ids.append(t.run.id)
         t.log({"test_success": 0.5}, step=step)

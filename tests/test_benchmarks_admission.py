@@ -21,9 +21,13 @@ class KnownMDE:
 
 def test_shares_follow_the_test_precondition():
     # rows: good pour admitted, good pour refused (std), bad pour admitted, good move admitted, bad move refused
-    data = {"X": torch.zeros(5, 8), "exp": SimpleNamespace(beta_test=2.0, d_max=0.07),
-            "good": np.array([True, True, False, True, False]), "pour": np.array([True, True, True, False, False]),
-            "partial": np.array([False, True, False, False, False])}
+    data = {
+        "X": torch.zeros(5, 8),
+        "exp": SimpleNamespace(beta_test=2.0, d_max=0.07),
+        "good": np.array([True, True, False, True, False]),
+        "pour": np.array([True, True, True, False, False]),
+        "partial": np.array([False, True, False, False, False]),
+    }
     mde = KnownMDE([0.01, 0.01, 0.02, 0.03, 0.10], [0.01, 0.05, 0.01, 0.01, 0.01])
     r = score(mde, data)
     assert r["pour_good"] == 0.5 and r["pour_bad"] == 1.0 and r["move_good"] == 1.0 and r["move_bad"] == 0.0

@@ -1,4 +1,5 @@
 """benchmarks/collect_csvs.py: runs made at different times land in one committed tree that active.report reads."""
+
 from __future__ import annotations
 
 import csv
@@ -29,7 +30,7 @@ def _rows(path: Path) -> list[dict[str, str]]:
 
 def test_collects_csvs_of_several_runs_and_renames_a_method(tmp_path):
     a = _run(tmp_path / "a", 0, "random_plan")
-    b = _run(tmp_path / "b", 0, "active_balanced", digest="bbbb")   # same seed, another run: model_only rows agree
+    b = _run(tmp_path / "b", 0, "active_balanced", digest="bbbb")  # same seed, another run: model_only rows agree
     dest = tmp_path / "tree"
     assert collect(dest, [a], {}) == 4
     assert collect(dest, [b / "seed0" / "active_balanced"], {"active_balanced": "active_straddle"}) == 3
@@ -38,7 +39,7 @@ def test_collects_csvs_of_several_runs_and_renames_a_method(tmp_path):
     assert _rows(dest / "seed0" / "active_straddle" / "results.csv")[0]["method"] == "active_straddle"
     assert _rows(dest / "seed0" / "active_straddle" / "tests.csv")[0]["method"] == "active_straddle"
     assert (dest / "seed0" / "active_straddle" / "config.json").read_text() == '{"digest": "bbbb"}'
-    assert collect(dest, [a], {}) == 0   # idempotent
+    assert collect(dest, [a], {}) == 0  # idempotent
 
 
 def test_two_sources_for_one_method_and_seed_is_an_error(tmp_path):

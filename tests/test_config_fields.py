@@ -112,13 +112,24 @@ def test_every_preset_passes_and_every_leaf_has_a_rule(presets):
 def test_valid_values_of_another_form_pass(presets):
     """Integers pass as floats, tuples as lists; the optional fields take null."""
     cfg = presets["quick"]
-    for loc, value in [(("experiment", "d_max"), 1), (("world", "skills", "move", "x"), (0.1, 0.5)),
-                       (("experiment", "plan_goal_tol"), None), (("mde", "group_column"), None),
-                       (("seeds",), [0, 1, 2]), (("planner", "workers"), 3), (("world", "sim", "arch"), "gpu")]:
+    for loc, value in [
+        (("experiment", "d_max"), 1),
+        (("world", "skills", "move", "x"), (0.1, 0.5)),
+        (("experiment", "plan_goal_tol"), None),
+        (("mde", "group_column"), None),
+        (("seeds",), [0, 1, 2]),
+        (("planner", "workers"), 3),
+        (("world", "sim", "arch"), "gpu"),
+    ]:
         assert refusal(with_value(cfg, (loc), value)) is None, format_path(loc)
-    custom = ["acquisition._target_=my_acq.WorstStepStd", "+acquisition.width=3",
-              "+methods.active_balanced.acquisition.width=2", "+methods.mine._target_=my_methods.Mine",
-              "+methods.mine.k=3", "method=mine"]
+    custom = [
+        "acquisition._target_=my_acq.WorstStepStd",
+        "+acquisition.width=3",
+        "+methods.active_balanced.acquisition.width=2",
+        "+methods.mine._target_=my_methods.Mine",
+        "+methods.mine.k=3",
+        "method=mine",
+    ]
     assert refusal(compose_config(custom)) is None  # a custom class's parameters are its own
 
 
@@ -170,31 +181,49 @@ def test_every_string_and_boolean_leaf_refuses_a_wrong_value(presets, preset):
     assert not failures, "\n".join(failures)
 
 
-@pytest.mark.parametrize("override, line", [
-    ("world.sim.arch=moon", "world.sim.arch = 'moon': allowed one of ('cpu', 'gpu', 'auto')"),
-    ("runner=x", "runner = 'x': allowed one of ('sequential', 'lockstep')"),
-    ("mde.predict_dtype=float16", "mde.predict_dtype = 'float16': allowed one of ('float32', 'float64')"),
-    ("mde.nu=2.0", "mde.nu = 2.0: allowed one of (0.5, 1.5, 2.5)"),
-    ("world.plant.on_contact=bounce", "world.plant.on_contact = 'bounce': allowed one of ('stop', 'hold', 'stuck')"),
-    ("experiment.fallback=plans", "experiment.fallback = 'plans': allowed one of ('random_actions', 'model_plan')"),
-    ("planner.workers=many", "planner.workers = 'many': allowed an integer >= 1"),
-    ("method=nope", "method = 'nope': allowed one of ['active_admission'"),
-    ("experiment.methods=[random_plan,nope]", "experiment.methods[1] = 'nope': allowed one of ['active_admission'"),
-    ("world.skills.move.x=[0.5,0.1]", "world.skills.move.x = [0.5, 0.1]: allowed a [low, high] pair with low <= high"),
-    ("world.problems.goal=[0.3,1.2]", "world.problems.goal[1] = 1.2: allowed [0, 1]"),
-    ("experiment.beta_train=[1.0]", "experiment.beta_train = [1.0]: allowed [beta_early, beta_late]"),
-    ("planner.distance_weights=[0,0,0,0]", "planner.distance_weights = [0, 0, 0, 0]: allowed 4 finite numbers >= 0"),
-    ("planner.batch_min=512", "planner.batch_max = 256: allowed an integer >= batch_min = 512"),
-    ("seeds=[0,0]", "seeds = [0, 0]: allowed each seed at most once"),
-    ("mde.max_fit_points=1", "mde.max_fit_points = 1: allowed 0 (all points) or an integer >= 2"),
-    ("acquisition=admission +acquisition.gamma=0.5",
-     "acquisition.gamma = 0.5: not a parameter of active.acquisition.TrajectoryAdmissionGain"),
-    ("+methods.active_balanced.acquisition.cc=0.2", "methods.active_balanced.acquisition.cc = 0.2: a parameter of no "
-                                                    "acquisition"),
-    ("+methods.random_plan.acquisition.c=0.2", "methods.random_plan.acquisition = {'c': 0.2}: not a parameter of "
-                                               "active.methods.RandomPlan"),
-    ("acquisition._target_=not-a-path", "acquisition._target_ = 'not-a-path': allowed a dotted import path"),
-])
+@pytest.mark.parametrize(
+    "override, line",
+    [
+        ("world.sim.arch=moon", "world.sim.arch = 'moon': allowed one of ('cpu', 'gpu', 'auto')"),
+        ("runner=x", "runner = 'x': allowed one of ('sequential', 'lockstep')"),
+        ("mde.predict_dtype=float16", "mde.predict_dtype = 'float16': allowed one of ('float32', 'float64')"),
+        ("mde.nu=2.0", "mde.nu = 2.0: allowed one of (0.5, 1.5, 2.5)"),
+        (
+            "world.plant.on_contact=bounce",
+            "world.plant.on_contact = 'bounce': allowed one of ('stop', 'hold', 'stuck')",
+        ),
+        ("experiment.fallback=plans", "experiment.fallback = 'plans': allowed one of ('random_actions', 'model_plan')"),
+        ("planner.workers=many", "planner.workers = 'many': allowed an integer >= 1"),
+        ("method=nope", "method = 'nope': allowed one of ['active_admission'"),
+        ("experiment.methods=[random_plan,nope]", "experiment.methods[1] = 'nope': allowed one of ['active_admission'"),
+        (
+            "world.skills.move.x=[0.5,0.1]",
+            "world.skills.move.x = [0.5, 0.1]: allowed a [low, high] pair with low <= high",
+        ),
+        ("world.problems.goal=[0.3,1.2]", "world.problems.goal[1] = 1.2: allowed [0, 1]"),
+        ("experiment.beta_train=[1.0]", "experiment.beta_train = [1.0]: allowed [beta_early, beta_late]"),
+        (
+            "planner.distance_weights=[0,0,0,0]",
+            "planner.distance_weights = [0, 0, 0, 0]: allowed 4 finite numbers >= 0",
+        ),
+        ("planner.batch_min=512", "planner.batch_max = 256: allowed an integer >= batch_min = 512"),
+        ("seeds=[0,0]", "seeds = [0, 0]: allowed each seed at most once"),
+        ("mde.max_fit_points=1", "mde.max_fit_points = 1: allowed 0 (all points) or an integer >= 2"),
+        (
+            "acquisition=admission +acquisition.gamma=0.5",
+            "acquisition.gamma = 0.5: not a parameter of active.acquisition.TrajectoryAdmissionGain",
+        ),
+        (
+            "+methods.active_balanced.acquisition.cc=0.2",
+            "methods.active_balanced.acquisition.cc = 0.2: a parameter of no acquisition",
+        ),
+        (
+            "+methods.random_plan.acquisition.c=0.2",
+            "methods.random_plan.acquisition = {'c': 0.2}: not a parameter of active.methods.RandomPlan",
+        ),
+        ("acquisition._target_=not-a-path", "acquisition._target_ = 'not-a-path': allowed a dotted import path"),
+    ],
+)
 def test_choices_pairs_and_names_are_refused_saying_what_is_allowed(override, line):
     msg = refusal(compose_config(override.split()))
     assert msg is not None and line in msg, msg
@@ -217,24 +246,36 @@ def test_the_message_has_one_line_per_field(presets):
     cfg = with_value(with_value(presets["tiny"], ("world", "sim", "dx"), "abc"), ("experiment", "beta_test"), math.nan)
     with pytest.raises(ConfigFieldError) as e:
         check_config(cfg)
-    assert str(e.value).splitlines() == ["world.sim.dx = 'abc': allowed > 0 (a finite number)",
-                                         "experiment.beta_test = nan: allowed a finite number"]
+    assert str(e.value).splitlines() == [
+        "world.sim.dx = 'abc': allowed > 0 (a finite number)",
+        "experiment.beta_test = nan: allowed a finite number",
+    ]
     assert [f[0] for f in e.value.fields] == ["world.sim.dx", "experiment.beta_test"]
 
 
 # ------------------------------------------------------------------ refused before compute
-@pytest.mark.parametrize("override, line", [
-    ("experiment.beta_test=abc", "experiment.beta_test = 'abc': allowed a finite number"),
-    ("experiment.beta_test=nan", "experiment.beta_test = nan: allowed a finite number"),
-    ("experiment.d_max=abc", "experiment.d_max = 'abc': allowed > 0"),
-    ("world.sim.dx=abc", "world.sim.dx = 'abc': allowed > 0"),
-    ("dynamics.train.lr=abc", "dynamics.train.lr = 'abc': allowed > 0"),
-    ("world.problems.tolerance=abc", "world.problems.tolerance = 'abc': allowed (0, 1]"),
-    ("experiment.beta_train=[a,1]", "experiment.beta_train[0] = 'a': allowed a finite number"),
-])
+@pytest.mark.parametrize(
+    "override, line",
+    [
+        ("experiment.beta_test=abc", "experiment.beta_test = 'abc': allowed a finite number"),
+        ("experiment.beta_test=nan", "experiment.beta_test = nan: allowed a finite number"),
+        ("experiment.d_max=abc", "experiment.d_max = 'abc': allowed > 0"),
+        ("world.sim.dx=abc", "world.sim.dx = 'abc': allowed > 0"),
+        ("dynamics.train.lr=abc", "dynamics.train.lr = 'abc': allowed > 0"),
+        ("world.problems.tolerance=abc", "world.problems.tolerance = 'abc': allowed (0, 1]"),
+        ("experiment.beta_train=[a,1]", "experiment.beta_train[0] = 'a': allowed a finite number"),
+    ],
+)
 def test_a_run_refuses_before_writing_anything(tmp_path, override, line):
-    cfg = compose_config(["experiment=tiny", "wandb.mode=disabled", "progress=false",
-                          f"dynamics.cache_root={tmp_path / 'cache'}", override])
+    cfg = compose_config(
+        [
+            "experiment=tiny",
+            "wandb.mode=disabled",
+            "progress=false",
+            f"dynamics.cache_root={tmp_path / 'cache'}",
+            override,
+        ]
+    )
     with pytest.raises(ConfigFieldError) as e:
         run_experiment(cfg, tmp_path / "out")
     assert line in str(e.value)
@@ -255,10 +296,16 @@ def test_the_choices_are_those_of_the_consuming_code():
     assert (schema.ARCHES, schema.BOX_NORMALS) == (sim_config.ARCHES, sim_config.BOX_NORMALS)
     assert schema.PLANT_CONTACT == sim.world.PLANT_CONTACT
     assert (schema.ACTIVATIONS, schema.LOSSES, schema.LR_SCHEDULES) == (
-        dynamics.config.ACTIVATIONS, dynamics.config.LOSSES, dynamics.config.LR_SCHEDULES)
+        dynamics.config.ACTIVATIONS,
+        dynamics.config.LOSSES,
+        dynamics.config.LR_SCHEDULES,
+    )
     assert (schema.NU, schema.INPUT_SCALING, schema.PREDICT_DTYPES, schema.PRIORS) == (
-        mde.config.ALLOWED_NU, mde.config.ALLOWED_INPUT_SCALING, mde.config.ALLOWED_PREDICT_DTYPE,
-        mde.config.ALLOWED_PRIORS)
+        mde.config.ALLOWED_NU,
+        mde.config.ALLOWED_INPUT_SCALING,
+        mde.config.ALLOWED_PREDICT_DTYPE,
+        mde.config.ALLOWED_PRIORS,
+    )
     assert set(schema.OMPL_LOG_LEVELS) == planner.config._LOG_LEVELS
     assert schema.FALLBACKS == active.experiment.ALLOWED_FALLBACKS
     assert (schema.RUNNERS, schema.WANDB_MODES) == (active.run.RUNNERS, active.run.WANDB_MODES)
@@ -266,8 +313,11 @@ def test_the_choices_are_those_of_the_consuming_code():
 
 
 def _params(cls) -> set[str]:
-    return {k for k, p in inspect.signature(cls.__init__).parameters.items()
-            if k != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
+    return {
+        k
+        for k, p in inspect.signature(cls.__init__).parameters.items()
+        if k != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
+    }
 
 
 def test_the_built_in_parameters_are_those_of_the_classes():
@@ -275,7 +325,8 @@ def test_the_built_in_parameters_are_those_of_the_classes():
 
     assert schema.ACQUISITION_PARAMS == {
         f"{c.__module__}.{c.__name__}": schema.ACQUISITION_PARAMS[f"{c.__module__}.{c.__name__}"]
-        for c in ACQUISITIONS.values()}
+        for c in ACQUISITIONS.values()
+    }
     for c in ACQUISITIONS.values():  # model and reference are the loop's
         assert set(schema.ACQUISITION_PARAMS[f"{c.__module__}.{c.__name__}"]) == _params(c) - {"model", "reference"}
     for target, params in schema.METHOD_PARAMS.items():

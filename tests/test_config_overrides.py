@@ -29,12 +29,23 @@ EXPERIMENTS = sorted(p.stem for p in (CONFIGS / "experiment").glob("*.yaml"))
 
 #: a valid value other than the default for every planner-only key (a new key must be added here: shown to act)
 PLANNER_ALTERNATIVES = {
-    "state_low": [0.04, 0.02, 0.0, 0.0, 0.0], "state_high": [0.56, 0.37, 2.5, 1.0, 1.0], "p_move": 0.4,
-    "goal_bias": 0.1, "batch_min": 8, "batch_max": 128, "last_step_proposals": 16,
-    "distance_weights": [1.0, 2.0, 1.0, 1.0], "clip_to_bounds": False, "prune_dead_states": False,
-    "stuck_tilt": 0.1, "stuck_move": 0.01, "torch_threads": 2, "ompl_log_level": "warn",
+    "state_low": [0.04, 0.02, 0.0, 0.0, 0.0],
+    "state_high": [0.56, 0.37, 2.5, 1.0, 1.0],
+    "p_move": 0.4,
+    "goal_bias": 0.1,
+    "batch_min": 8,
+    "batch_max": 128,
+    "last_step_proposals": 16,
+    "distance_weights": [1.0, 2.0, 1.0, 1.0],
+    "clip_to_bounds": False,
+    "prune_dead_states": False,
+    "stuck_tilt": 0.1,
+    "stuck_move": 0.01,
+    "torch_threads": 2,
+    "ompl_log_level": "warn",
 }
-#: for every derived planner key: an override of its source (space-separated overrides) and the value the planner must get
+#: for every derived planner key: an override of its source (space-separated overrides) and the value the planner
+#: must get
 SOURCE_ALTERNATIVES = {
     "move_x": ("world.skills.move.x=[0.12,0.5]", (0.12, 0.5)),
     "move_y": ("world.skills.move.y=[0.07,0.3]", (0.07, 0.3)),
@@ -49,11 +60,27 @@ SOURCE_ALTERNATIVES = {
 }
 #: a valid value other than quick's for every experiment key
 EXPERIMENT_ALTERNATIVES = {
-    "name": "other", "methods": ["random_plan"], "iterations": 3, "trajectories_per_iteration": 3, "refit_every": 3,
-    "candidates": 3, "test_problems": 3, "random_actions_length": 3, "d_max": 0.05, "beta_train": [-1.0, 0.5],
-    "beta_switch_iteration": 2, "beta_test": 1.5, "calibration_trajectories": 3, "planner_propagation_budget": 1234,
-    "planner_time_budget": 5.0, "known_obstacles": False, "refine_steps": 2, "refine_lr": 0.01, "plan_goal_tol": 0.03,
-    "plan_spill_limit": 0.01, "plan_accept_tol": 0.04,
+    "name": "other",
+    "methods": ["random_plan"],
+    "iterations": 3,
+    "trajectories_per_iteration": 3,
+    "refit_every": 3,
+    "candidates": 3,
+    "test_problems": 3,
+    "random_actions_length": 3,
+    "d_max": 0.05,
+    "beta_train": [-1.0, 0.5],
+    "beta_switch_iteration": 2,
+    "beta_test": 1.5,
+    "calibration_trajectories": 3,
+    "planner_propagation_budget": 1234,
+    "planner_time_budget": 5.0,
+    "known_obstacles": False,
+    "refine_steps": 2,
+    "refine_lr": 0.01,
+    "plan_goal_tol": 0.03,
+    "plan_spill_limit": 0.01,
+    "plan_accept_tol": 0.04,
 }
 
 
@@ -72,6 +99,7 @@ def settings(overrides: list[str]):
 
 def _override(key: str, value) -> str:
     """``key=value`` in Hydra's override syntax."""
+
     def fmt(v):
         if isinstance(v, bool):
             return str(v).lower()
@@ -108,7 +136,9 @@ def test_a_derived_planner_key_follows_its_source_and_is_refused_on_the_planner_
     _, _, pc, _ = settings(override.split())
     assert getattr(pc, key) == want
     src = DERIVED_PLANNER_KEYS[key]
-    with pytest.raises(ValueError, match=rf"^planner\.{key} = .* differs from {re.escape(src)} = .*set {re.escape(src)}"):
+    with pytest.raises(
+        ValueError, match=rf"^planner\.{key} = .* differs from {re.escape(src)} = .*set {re.escape(src)}"
+    ):
         settings([_override(f"planner.{key}", want)])
 
 
@@ -131,13 +161,17 @@ def test_unknown_keys_are_refused_naming_the_key_and_the_allowed_ones():
 
 def test_unknown_keys_fail_before_any_compute(tmp_path):
     base = ["experiment=tiny", "wandb.mode=disabled", "progress=false", f"dynamics.cache_root={tmp_path / 'cache'}"]
-    for bad, match in (("+planner.bogus=1", r"^planner\.bogus = 1: not a key of planner"),
-                       ("+planner.beta=1.0", r"^planner\.beta = 1\.0: not a key of planner"),
-                       ("planner.n_candidates=7", r"^planner\.n_candidates = 7 differs from experiment\.candidates"),
-                       ("+experiment.bogus=1", r"^experiment\.bogus = 1: not a key of experiment"),
-                       ("+methods.active_balanced.acquisition.cc=0.2",
-                        r"^methods\.active_balanced\.acquisition\.cc = 0\.2: a parameter of no acquisition"),
-                       ("method=nope", r"^method = 'nope': allowed one of")):
+    for bad, match in (
+        ("+planner.bogus=1", r"^planner\.bogus = 1: not a key of planner"),
+        ("+planner.beta=1.0", r"^planner\.beta = 1\.0: not a key of planner"),
+        ("planner.n_candidates=7", r"^planner\.n_candidates = 7 differs from experiment\.candidates"),
+        ("+experiment.bogus=1", r"^experiment\.bogus = 1: not a key of experiment"),
+        (
+            "+methods.active_balanced.acquisition.cc=0.2",
+            r"^methods\.active_balanced\.acquisition\.cc = 0\.2: a parameter of no acquisition",
+        ),
+        ("method=nope", r"^method = 'nope': allowed one of"),
+    ):
         with pytest.raises(ValueError, match=match):
             run_experiment(compose_config(base + [bad]), tmp_path / "out")
     assert not (tmp_path / "out").exists() and not (tmp_path / "cache").exists()
@@ -171,11 +205,17 @@ def test_a_read_only_folder_is_refused_by_the_write_probe(tmp_path, monkeypatch)
     ro = tmp_path / "ro"
     ro.mkdir(mode=0o500)
     _refuse_writes_in(ro, monkeypatch)
-    with pytest.raises(RunDirectoryError, match=rf"^output directory {re.escape(str(ro))} is not writable "
-                                                r"\(Permission denied\); .*\(hydra\.run\.dir=\.\.\.\)"):
+    with pytest.raises(
+        RunDirectoryError,
+        match=rf"^output directory {re.escape(str(ro))} is not writable "
+        r"\(Permission denied\); .*\(hydra\.run\.dir=\.\.\.\)",
+    ):
         check_writable([ro])
-    with pytest.raises(ValueError, match=rf"^dynamics cache {re.escape(str(ro))} is not writable \(Permission denied\)"
-                                         r".*\(dynamics\.cache_root=\.\.\.\)"):
+    with pytest.raises(
+        ValueError,
+        match=rf"^dynamics cache {re.escape(str(ro))} is not writable \(Permission denied\)"
+        r".*\(dynamics\.cache_root=\.\.\.\)",
+    ):
         check_writable([ro], what="dynamics cache", field="dynamics.cache_root")
     assert list(ro.iterdir()) == []
 
@@ -192,8 +232,9 @@ def test_a_read_only_run_dir_override_gets_the_projects_message_before_hydra_sta
     ro.mkdir(mode=0o500)
     _refuse_writes_in(ro, monkeypatch)
     target = ro / "run"
-    monkeypatch.setattr(sys, "argv", ["active.run", "experiment=tiny", "wandb.mode=disabled",
-                                      f"hydra.run.dir={target}"])
+    monkeypatch.setattr(
+        sys, "argv", ["active.run", "experiment=tiny", "wandb.mode=disabled", f"hydra.run.dir={target}"]
+    )
     with pytest.raises(SystemExit) as done:
         active.run.cli()
     assert done.value.code == 2
@@ -251,8 +292,9 @@ def test_documented_overrides_arrive():
         settings(["experiment.plan_goal_tol=0.02", "experiment.plan_accept_tol=0.01"])
     leaf = settings(["world.plant.leaves.0.center=[0.045,0.26]"])[1].plant["leaves"][0]  # README: a higher leaf
     assert list(leaf["center"]) == [0.045, 0.26] and list(leaf["radii"]) == [0.045, 0.007]
-    leaf = settings(["world.plant.leaves.0.center=[0.065,0.22]", "world.plant.leaves.0.radii=[0.065,0.007]"]
-                    )[1].plant["leaves"][0]  # README: the longer leaf, over 60 % of the mouth
+    leaf = settings(["world.plant.leaves.0.center=[0.065,0.22]", "world.plant.leaves.0.radii=[0.065,0.007]"])[1].plant[
+        "leaves"
+    ][0]  # README: the longer leaf, over 60 % of the mouth
     assert list(leaf["center"]) == [0.065, 0.22] and list(leaf["radii"]) == [0.065, 0.007]
     with pytest.raises(ValueError, match=r"experiment.plan_spill_limit = 0.03: allowed \[0, 0.02\]"):
         settings(["experiment.plan_spill_limit=0.03"])
@@ -287,7 +329,10 @@ def test_the_acquisition_is_part_of_the_digest():
 def test_the_state_box_must_contain_the_action_ranges():
     with pytest.raises(ValueError, match=r"move_y=\[0.06, 0.4\] reaches outside the state bounds of y"):
         settings(["world.skills.move.y=[0.06,0.40]"])
-    assert settings(["world.skills.move.y=[0.06,0.40]", "planner.state_high=[0.55,0.40,2.4,1.0,1.0]"])[2].move_y == (0.06, 0.4)
+    assert settings(["world.skills.move.y=[0.06,0.40]", "planner.state_high=[0.55,0.40,2.4,1.0,1.0]"])[2].move_y == (
+        0.06,
+        0.4,
+    )
 
 
 # ------------------------------------------------------------------ the problems
@@ -313,7 +358,9 @@ def test_problems_are_the_worlds_and_pinned():
         np.testing.assert_array_equal(p.plant_jitter, q.plant_jitter)
         assert p.goal == q.goal
     np.testing.assert_array_equal(a[0].start, [0.4555292608547401, 0.08968778338440009, 0.0, 1.0, 0.0])
-    np.testing.assert_array_equal(a[0].plant_jitter, [-0.004474242035638218, -0.005050051028821285, -0.03240940989149697])
+    np.testing.assert_array_equal(
+        a[0].plant_jitter, [-0.004474242035638218, -0.005050051028821285, -0.03240940989149697]
+    )
     assert a[0].goal == 0.7060472533278868
     np.testing.assert_array_equal(a[1].start, [0.4892682997237879, 0.12978339160347913, 0.0, 1.0, 0.0])
     assert a[1].goal == 0.4224823005343982 and a[0].world == "target"
@@ -321,11 +368,21 @@ def test_problems_are_the_worlds_and_pinned():
         sample_problems(world, 1, 0, world="moon")
 
 
-@pytest.mark.parametrize("group, key, value", [
-    ("mde", "lengthscale_max", 2), ("mde", "latent_std_min", 0.05), ("mde", "label_max", 0.3),
-    ("mde", "latent_std_max", 0.05), ("mde", "noise_lengthscale_max", 2), ("mde", "hyperparameter_priors", "gamma"),
-    ("experiment", "fallback", "model_plan"), ("experiment", "plan_goal_tol", 0.02),
-    ("experiment", "plan_accept_tol", 0.04), ("experiment", "plan_spill_limit", 0.01)])
+@pytest.mark.parametrize(
+    "group, key, value",
+    [
+        ("mde", "lengthscale_max", 2),
+        ("mde", "latent_std_min", 0.05),
+        ("mde", "label_max", 0.3),
+        ("mde", "latent_std_max", 0.05),
+        ("mde", "noise_lengthscale_max", 2),
+        ("mde", "hyperparameter_priors", "gamma"),
+        ("experiment", "fallback", "model_plan"),
+        ("experiment", "plan_goal_tol", 0.02),
+        ("experiment", "plan_accept_tol", 0.04),
+        ("experiment", "plan_spill_limit", 0.01),
+    ],
+)
 def test_every_result_relevant_key_is_part_of_the_digest(group, key, value):
     """Any other value of a key that changes results is another configuration."""
     new = compose_config(["experiment=tiny"])
@@ -362,10 +419,12 @@ def test_a_method_spec_enters_the_digest_only_for_the_methods_a_run_executes():
     """A changed spec of a method the run executes changes the digest; a change to a method the run does not
     execute does not."""
     base = compose_config(["experiment=tiny"])
-    assert config_digest(compose_config(["experiment=tiny", "methods.active_balanced.acquisition.c=0.2"])) != \
-        config_digest(base)
-    assert config_digest(compose_config(["experiment=tiny", "methods.active_mean.acquisition.c=0.2"])) == \
-        config_digest(base)  # tiny runs active_balanced and random_actions only
+    assert config_digest(
+        compose_config(["experiment=tiny", "methods.active_balanced.acquisition.c=0.2"])
+    ) != config_digest(base)
+    assert config_digest(compose_config(["experiment=tiny", "methods.active_mean.acquisition.c=0.2"])) == config_digest(
+        base
+    )  # tiny runs active_balanced and random_actions only
 
 
 def test_mde_options_are_the_default_mde_with_named_fields_changed():
@@ -379,10 +438,13 @@ def test_mde_options_are_the_default_mde_with_named_fields_changed():
     assert (base["mde"]["heteroscedastic"], base["mde"]["label_max"]) == (False, 0.1)
     assert base["mde"]["hyperparameter_priors"] == "lognormal"
     changed = {k for k in base["mde"] if base["mde"][k] != hetero["mde"].get(k)}
-    assert changed == {"heteroscedastic", "label_max", "hyperparameter_priors"} and set(hetero["mde"]) == set(base["mde"])
+    assert changed == {"heteroscedastic", "label_max", "hyperparameter_priors"} and set(hetero["mde"]) == set(
+        base["mde"]
+    )
     assert (hetero["mde"]["heteroscedastic"], hetero["mde"]["label_max"]) == (True, None)
-    spelled = compose_config(["experiment=tiny", "mde.heteroscedastic=true", "mde.label_max=null",
-                              "mde.hyperparameter_priors=none"])
+    spelled = compose_config(
+        ["experiment=tiny", "mde.heteroscedastic=true", "mde.label_max=null", "mde.hyperparameter_priors=none"]
+    )
     assert config_digest(hetero) == config_digest(spelled) != config_digest(base)
     ml = compose_config(["experiment=tiny", "mde=maximum_likelihood"])
     assert {k for k in base["mde"] if base["mde"][k] != ml["mde"][k]} == {"hyperparameter_priors"}

@@ -24,8 +24,16 @@ def no_simulator(monkeypatch):
     monkeypatch.setattr("dynamics.evaluate.generate_transitions", fake_eval_set)
 
 
-OVERRIDES = ["progress=false", "data.n_batches=1", "data.pour_batches=0", "data.batch_size=12", "model.hidden=[16]",
-             "train.max_epochs=3", "eval.source_batches=1", "eval.target_batches=2"]
+OVERRIDES = [
+    "progress=false",
+    "data.n_batches=1",
+    "data.pour_batches=0",
+    "data.batch_size=12",
+    "model.hidden=[16]",
+    "train.max_epochs=3",
+    "eval.source_batches=1",
+    "eval.target_batches=2",
+]
 
 
 def test_train_evaluate_bench_commands(tmp_path, no_simulator, capsys):
@@ -50,7 +58,11 @@ def test_train_evaluate_bench_commands(tmp_path, no_simulator, capsys):
     res = bench.main(["--out", str(tmp_path / "bench.json"), "--min-seconds", "0.005", "--repeats", "1", *over])
     assert res["model"].endswith("model.pt")  # the checkpoint trained above, not an untrained net
     batches = {(r["path"], r["batch"]) for r in res["rows"]}
-    assert {("predict (torch) pour", 1), ("predict (torch) mixed", 1024), ("predict_one (numpy) move", 1),
-            ("predict_one (numpy) pour", 1)} <= batches
+    assert {
+        ("predict (torch) pour", 1),
+        ("predict (torch) mixed", 1024),
+        ("predict_one (numpy) move", 1),
+        ("predict_one (numpy) pour", 1),
+    } <= batches
     assert all(r["us_per_call"] > 0 for r in res["rows"])
     assert json.loads((tmp_path / "bench.json").read_text())["rows"] == res["rows"]

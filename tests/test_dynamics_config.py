@@ -27,19 +27,22 @@ def test_hydra_compose_with_overrides_and_quick_preset():
     assert q.data.n_batches == 4 and q.replace(data=DynamicsConfig().data) == DynamicsConfig()
 
 
-@pytest.mark.parametrize("d, match", [
-    ({"bogus": 1}, r"unknown dynamics config key\(s\) \['bogus'\]"),
-    ({"data": {"n_batchez": 3}}, r"unknown dynamics.data key\(s\) \['n_batchez'\]"),
-    ({"data": {"p_pour": 1.5}}, r"data.p_pour = 1.5: allowed a probability in \[0, 1\]"),
-    ({"data": {"min_actions": 5, "max_actions": 3}}, r"data.max_actions = 3: allowed 5..6"),
-    ({"data": {"near_target_y": [0.3, 0.1]}}, r"data.near_target_y = \[0.3, 0.1\]: allowed a finite range"),
-    ({"model": {"activation": "gelu"}}, r"model.activation = 'gelu': allowed one of"),
-    ({"model": {"hidden": []}}, r"model.hidden = \[\]"),
-    ({"train": {"val_fraction": 1.0}}, r"train.val_fraction = 1.0: allowed \(0, 1\)"),
-    ({"train": {"lr": 0}}, r"train.lr = 0: allowed > 0"),
-    ({"train": {"loss": "l2"}}, r"train.loss = 'l2': allowed one of \('distance', 'scaled_mse'\)"),
-    ({"train": {"lr_schedule": "step"}}, r"train.lr_schedule = 'step': allowed one of \('constant', 'cosine'\)"),
-])
+@pytest.mark.parametrize(
+    "d, match",
+    [
+        ({"bogus": 1}, r"unknown dynamics config key\(s\) \['bogus'\]"),
+        ({"data": {"n_batchez": 3}}, r"unknown dynamics.data key\(s\) \['n_batchez'\]"),
+        ({"data": {"p_pour": 1.5}}, r"data.p_pour = 1.5: allowed a probability in \[0, 1\]"),
+        ({"data": {"min_actions": 5, "max_actions": 3}}, r"data.max_actions = 3: allowed 5..6"),
+        ({"data": {"near_target_y": [0.3, 0.1]}}, r"data.near_target_y = \[0.3, 0.1\]: allowed a finite range"),
+        ({"model": {"activation": "gelu"}}, r"model.activation = 'gelu': allowed one of"),
+        ({"model": {"hidden": []}}, r"model.hidden = \[\]"),
+        ({"train": {"val_fraction": 1.0}}, r"train.val_fraction = 1.0: allowed \(0, 1\)"),
+        ({"train": {"lr": 0}}, r"train.lr = 0: allowed > 0"),
+        ({"train": {"loss": "l2"}}, r"train.loss = 'l2': allowed one of \('distance', 'scaled_mse'\)"),
+        ({"train": {"lr_schedule": "step"}}, r"train.lr_schedule = 'step': allowed one of \('constant', 'cosine'\)"),
+    ],
+)
 def test_bad_values_name_field_and_range(d, match):
     with pytest.raises(DynamicsError, match=match):
         DynamicsConfig.from_dict(d)
@@ -73,9 +76,16 @@ def test_the_hashes_are_digests_of_every_setting():
     constant = base.replace(train=dataclasses.replace(base.train, lr_schedule="constant"))
     assert model_hash(constant) != model_hash(base)
     no_pours = base.replace(data=dataclasses.replace(base.data, pour_batches=0))
-    assert data_hash(no_pours.replace(data=dataclasses.replace(no_pours.data, pour_x=(0.2, 0.3)))) != data_hash(no_pours)
+    assert data_hash(no_pours.replace(data=dataclasses.replace(no_pours.data, pour_x=(0.2, 0.3)))) != data_hash(
+        no_pours
+    )
     w = yaml.safe_load(DEFAULT_CONFIG.read_text())
-    for k, v in (("viscosity", 0.001), ("stretch_relax", 0.01), ("boundary_density", False), ("box_normals", "central")):
+    for k, v in (
+        ("viscosity", 0.001),
+        ("stretch_relax", 0.01),
+        ("boundary_density", False),
+        ("box_normals", "central"),
+    ):
         assert data_hash(base, {**w, "sim": {**w["sim"], k: v}}) != data_hash(base), k
     # the solver's defaults are filled in: a setting spelled out at its default is the same world
     assert data_hash(base, {**w, "sim": {**w["sim"], "viscosity": 0.0}}) == data_hash(base)
@@ -88,13 +98,18 @@ def test_another_format_version_is_refused_with_both_versions_and_the_fix(tmp_pa
     from dynamics.config import DATA_FORMAT_VERSION, MODEL_FORMAT_VERSION
     from dynamics.train import SHIPPED_DIR
 
-    for pattern, cls, version in (("source-*.pt", Transitions, DATA_FORMAT_VERSION),
-                                  ("model-*.pt", LearnedDynamics, MODEL_FORMAT_VERSION)):
+    for pattern, cls, version in (
+        ("source-*.pt", Transitions, DATA_FORMAT_VERSION),
+        ("model-*.pt", LearnedDynamics, MODEL_FORMAT_VERSION),
+    ):
         payload = torch.load(sorted(SHIPPED_DIR.glob(pattern))[0], weights_only=True)
         path = tmp_path / pattern.replace("*", "old")
         torch.save({**payload, "version": version - 1}, path)
-        with pytest.raises(DynamicsError, match=rf"format version {version - 1}, this code reads version {version}; "
-                                                rf"delete .* and (regenerate it|retrain) with `python -m dynamics.train`"):
+        with pytest.raises(
+            DynamicsError,
+            match=rf"format version {version - 1}, this code reads version {version}; "
+            rf"delete .* and (regenerate it|retrain) with `python -m dynamics.train`",
+        ):
             cls.load(path)
 
 

@@ -44,8 +44,14 @@ def test_sampler_gives_valid_collision_free_sequences(wcfg, world):
 
 
 def test_near_target_moves_and_pours_after_them(wcfg):
-    data = DataConfig(p_pour=0.0, p_pour_after_pour=0.0, p_near_target=1.0, p_pour_after_near=1.0,
-                      p_theta_focus=1.0, pour_theta_focus=(1.2, 1.4))
+    data = DataConfig(
+        p_pour=0.0,
+        p_pour_after_pour=0.0,
+        p_near_target=1.0,
+        p_pour_after_near=1.0,
+        p_theta_focus=1.0,
+        pour_theta_focus=(1.2, 1.4),
+    )
     sm = SequenceSampler(data, wcfg)
     acts = sm.actions(np.random.default_rng(1), 6)
     assert (acts[:, 0] == [0, 1, 0, 1, 0, 1]).all()
@@ -57,10 +63,14 @@ def test_near_target_moves_and_pours_after_them(wcfg):
 
 
 def test_plant_clearance_separates_near_and_far(wcfg):
-    s = np.array([[0.24, 0.28, 0, 1, 0],   # pour with the lip right above the big leaf
-                  [0.45, 0.20, 0, 1, 0],   # move on the right, far from the plant
-                  [0.47, 0.20, 0, 1, 0],   # pour far right, water lands right of the target cup
-                  [0.31, 0.28, 0, 1, 0]])  # lip 6 cm right of the leaf tip, above it: the stream reaches it
+    s = np.array(
+        [
+            [0.24, 0.28, 0, 1, 0],  # pour with the lip right above the big leaf
+            [0.45, 0.20, 0, 1, 0],  # move on the right, far from the plant
+            [0.47, 0.20, 0, 1, 0],  # pour far right, water lands right of the target cup
+            [0.31, 0.28, 0, 1, 0],
+        ]
+    )  # lip 6 cm right of the leaf tip, above it: the stream reaches it
     a = np.array([[1, 1.5, 0.2], [0, 0.45, 0.30], [1, 1.0, 0.0], [1, 1.8, 0.2]])
     tr = Transitions.from_arrays(s, a, s)
     c = plant_clearance(wcfg, tr, "target")
@@ -88,7 +98,9 @@ def test_tiny_simulator_dataset_trains_and_resumes(tmp_path):
         assert np.allclose(ds.s_next[rows[:-1]], ds.s[rows[1:]])
     moved = (ds.skill() == 0) & ~ds.stuck
     lattice = float(WorldConfig.load().skills.get("lattice", 0.0))  # the world moves the cup to its lattice point
-    assert np.array_equal(ds.a[moved, 1:3], on_lattice(ds.a[moved, 1:3], lattice).astype(ds.a.dtype))  # recorded as executed
+    assert np.array_equal(
+        ds.a[moved, 1:3], on_lattice(ds.a[moved, 1:3], lattice).astype(ds.a.dtype)
+    )  # recorded as executed
     assert np.allclose(ds.s_next[moved, :2], ds.a[moved, 1:3], atol=2e-3)  # kinematic cup reaches it
     again = generate_transitions(data, "source", progress=False, shard_dir=tmp_path, executor=_NoSimulator())
     assert np.array_equal(again.s_next, ds.s_next)
@@ -137,8 +149,16 @@ def test_focused_pours_are_added_to_the_cached_random_data(tmp_path):
     from dynamics import DynamicsConfig
     from dynamics.train import load_or_generate_dataset
 
-    data = DataConfig(batch_size=2, n_batches=1, min_actions=1, max_actions=1, max_sim_seconds=4.0, seed=5,
-                      pour_batches=1, p_second_pour=0.0)
+    data = DataConfig(
+        batch_size=2,
+        n_batches=1,
+        min_actions=1,
+        max_actions=1,
+        max_sim_seconds=4.0,
+        seed=5,
+        pour_batches=1,
+        p_second_pour=0.0,
+    )
     cfg = DynamicsConfig(data=dataclasses.replace(data, pour_batches=0), progress=False)
     random_only = load_or_generate_dataset(cfg, tmp_path, use_shipped=False)
     both = load_or_generate_dataset(cfg.replace(data=data), tmp_path, use_shipped=False)

@@ -9,16 +9,34 @@ import pytest
 from benchmarks import dynamics_heldout
 from tests.doubles.synthetic import synthetic_generator
 
-TINY = "data.n_batches=1,data.pour_batches=0,data.batch_size=16,data.max_actions=4,model.hidden=[8],train.max_epochs=2,progress=false"
+TINY = (
+    "data.n_batches=1,data.pour_batches=0,data.batch_size=16,data.max_actions=4,model.hidden=[8],train.max_epochs=2,"
+    "progress=false"
+)
 
 
 def test_variants_are_scored_on_held_out_batches(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)  # the default cache_root is relative to the working directory
-    monkeypatch.setattr("dynamics.data.generate_source_dataset",
-                        lambda cfg, shard_dir=None, progress=False, world_cfg=None: synthetic_generator(cfg))
+    monkeypatch.setattr(
+        "dynamics.data.generate_source_dataset",
+        lambda cfg, shard_dir=None, progress=False, world_cfg=None: synthetic_generator(cfg),
+    )
     out = tmp_path / "r.json"
-    dynamics_heldout.main(["--heldout-batches", "2", "--seeds", "0", "1", "--out", str(out),
-                           "--variant", f"a={TINY}", "--variant", f"b={TINY},train.lr_schedule=constant,model.hidden=[8,8]"])
+    dynamics_heldout.main(
+        [
+            "--heldout-batches",
+            "2",
+            "--seeds",
+            "0",
+            "1",
+            "--out",
+            str(out),
+            "--variant",
+            f"a={TINY}",
+            "--variant",
+            f"b={TINY},train.lr_schedule=constant,model.hidden=[8,8]",
+        ]
+    )
     r = json.loads(out.read_text())
     assert r["heldout"] == {"batches": [1, 2], "transitions": 16 * 4}  # 16 trajectories of 4 synthetic steps
     for name in ("a", "b"):
@@ -43,8 +61,10 @@ def test_variants_with_other_data_are_scored_on_a_given_dataset(tmp_path, monkey
     from dynamics.evaluate import compose_config
 
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr("dynamics.data.generate_source_dataset",
-                        lambda cfg, shard_dir=None, progress=False, world_cfg=None: synthetic_generator(cfg))
+    monkeypatch.setattr(
+        "dynamics.data.generate_source_dataset",
+        lambda cfg, shard_dir=None, progress=False, world_cfg=None: synthetic_generator(cfg),
+    )
     a = load_or_generate_dataset(compose_config("default", TINY.split(",")))
     b = load_or_generate_dataset(compose_config("default", [*TINY.split(","), "data.seed=1"]))
     held = type(a).concat([a.subset(np.arange(8)), b], meta=dict(b.meta))  # 8 rows variant a trained on

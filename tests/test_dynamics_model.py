@@ -27,8 +27,15 @@ def random_model(seed: int = 0, scale: float = 3.0) -> LearnedDynamics:
 def random_inputs(n: int, seed: int = 0, wild: bool = False) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
     lo, hi = (-2.0, 3.0) if wild else (0.0, 1.0)
-    s = np.column_stack([rng.uniform(0, 0.6, n), rng.uniform(0, 0.5, n), rng.uniform(-1, 2.5, n),
-                         rng.uniform(lo, hi, n), rng.uniform(lo, hi, n)])
+    s = np.column_stack(
+        [
+            rng.uniform(0, 0.6, n),
+            rng.uniform(0, 0.5, n),
+            rng.uniform(-1, 2.5, n),
+            rng.uniform(lo, hi, n),
+            rng.uniform(lo, hi, n),
+        ]
+    )
     a = np.column_stack([rng.integers(0, 2, n), rng.uniform(-1, 3, n), rng.uniform(-1, 2, n)])
     return s, a
 
@@ -72,10 +79,13 @@ def test_batched_numpy_and_single_paths_agree():
     assert np.abs(t - n).max() < 1e-5
     for i in (0, 1, 100):
         assert np.abs(m.predict_one(s[i], a[i]) - n[i]).max() < 1e-9
-        assert np.abs(m.predict(torch.tensor(s[i:i + 1]), torch.tensor(a[i:i + 1]))[0].numpy() - n[i]).max() < 1e-5
+        assert np.abs(m.predict(torch.tensor(s[i : i + 1]), torch.tensor(a[i : i + 1]))[0].numpy() - n[i]).max() < 1e-5
     only_pour = a[a[:, 0] == 1]
-    assert np.allclose(m.predict_np(s[: len(only_pour)], only_pour),
-                       m.predict(torch.tensor(s[: len(only_pour)]), torch.tensor(only_pour)).numpy(), atol=1e-5)
+    assert np.allclose(
+        m.predict_np(s[: len(only_pour)], only_pour),
+        m.predict(torch.tensor(s[: len(only_pour)]), torch.tensor(only_pour)).numpy(),
+        atol=1e-5,
+    )
 
 
 @pytest.mark.parametrize("activation", ["silu", "tanh", "relu"])
@@ -102,12 +112,15 @@ def test_numpy_cache_follows_weight_changes(tmp_path):
     assert np.allclose(after, m.predict(torch.tensor(s), torch.tensor(a)).numpy(), atol=1e-5)
 
 
-@pytest.mark.parametrize("s_shape, a_shape, match", [
-    ((4, 4), (4, 3), r"states must have shape \[n, 5\]"),
-    ((4, 5), (4, 2), r"actions must have shape \[n, 3\]"),
-    ((5,), (3,), r"states must have shape \[n, 5\]"),
-    ((4, 5), (3, 3), r"4 states but 3 actions"),
-])
+@pytest.mark.parametrize(
+    "s_shape, a_shape, match",
+    [
+        ((4, 4), (4, 3), r"states must have shape \[n, 5\]"),
+        ((4, 5), (4, 2), r"actions must have shape \[n, 3\]"),
+        ((5,), (3,), r"states must have shape \[n, 5\]"),
+        ((4, 5), (3, 3), r"4 states but 3 actions"),
+    ],
+)
 def test_shape_errors(s_shape, a_shape, match):
     m = random_model()
     with pytest.raises(DynamicsError, match=match):
@@ -157,15 +170,17 @@ def test_checkpoint_errors(tmp_path):
     m = random_model()
     m.info = {"model_hash": "abc"}
     path = m.save(tmp_path / "m.pt")
-    with pytest.raises(DynamicsError,
-                       match=r"trained with another config \(hash abc, expected xyz\).*python -m dynamics.train"):
+    with pytest.raises(
+        DynamicsError, match=r"trained with another config \(hash abc, expected xyz\).*python -m dynamics.train"
+    ):
         LearnedDynamics.load(path, expected_hash="xyz")
     with pytest.raises(DynamicsError, match="does not exist; train it with `python -m dynamics.train`"):
         LearnedDynamics.load(tmp_path / "none.pt")
     corrupt = tmp_path / "corrupt.pt"
     corrupt.write_bytes(path.read_bytes()[:300])
-    with pytest.raises(DynamicsError,
-                       match=r"corrupt.*delete .*corrupt.pt and retrain with `python -m dynamics.train`"):
+    with pytest.raises(
+        DynamicsError, match=r"corrupt.*delete .*corrupt.pt and retrain with `python -m dynamics.train`"
+    ):
         LearnedDynamics.load(corrupt)
     other = tmp_path / "other.pt"
     torch.save({"weights": torch.zeros(3)}, other)
@@ -239,5 +254,6 @@ def test_ensemble_numpy_path_is_the_members_mean_and_follows_weight_changes():
     assert ens.predict_np(s[:0], a[:0]).shape == (0, 5)
     # members that cannot be stacked (another width) are averaged one by one
     odd = DynamicsEnsemble([members[0], LearnedDynamics(ModelConfig(hidden=(16,)))])
-    np.testing.assert_allclose(odd.predict_np(s, a), (members[0].predict_np(s, a) + odd.members[1].predict_np(s, a)) / 2,
-                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        odd.predict_np(s, a), (members[0].predict_np(s, a) + odd.members[1].predict_np(s, a)) / 2, rtol=0, atol=1e-12
+    )

@@ -27,8 +27,10 @@ def _default():
 def test_default_config_has_its_shipped_dataset():
     c, dh = _default()
     path = train_mod.find_shipped(dh)
-    assert path is not None, (f"no shipped dataset for the default config (data hash {dh}): the world, solver or data "
-                              f"config changed; refresh it with `python -m dynamics.shipped`")
+    assert path is not None, (
+        f"no shipped dataset for the default config (data hash {dh}): the world, solver or data "
+        f"config changed; refresh it with `python -m dynamics.shipped`"
+    )
     ds = Transitions.load(path, expected_hash=dh)
     assert ds.meta["world"] == "source" and ds.meta["n_batches"] == c.data.n_batches
     assert len(np.unique(ds.traj)) == (c.data.n_batches + c.data.pour_batches) * c.data.batch_size
@@ -41,8 +43,9 @@ def test_check_says_whether_the_shipped_files_match(tmp_path, monkeypatch, capsy
     c, _ = _default()
     assert shipped.check(c)
     assert capsys.readouterr().out.count("matches the configuration") == 1 + c.model.ensemble
-    names = [train_mod.shipped_path(cache_paths(c)["data_hash"]).name] + \
-            [train_mod.shipped_model_path(cache_paths(m)["model_hash"]).name for m in single_models(c)]
+    names = [train_mod.shipped_path(cache_paths(c)["data_hash"]).name] + [
+        train_mod.shipped_model_path(cache_paths(m)["model_hash"]).name for m in single_models(c)
+    ]
     for name in names:
         shutil.copyfile(train_mod.SHIPPED_DIR / name, tmp_path / name)
     shutil.copyfile(tmp_path / names[1], tmp_path / names[2])  # member 0's checkpoint under member 1's name
@@ -69,8 +72,13 @@ def _same_states(again, ds, rows, made_on: str | None) -> None:
         if made_on == here:
             np.testing.assert_array_equal(getattr(again, k), getattr(ds, k)[rows], err_msg=k)
         else:
-            np.testing.assert_allclose(getattr(again, k), getattr(ds, k)[rows], rtol=0.0, atol=OTHER_CPU_ATOL,
-                                       err_msg=f"{k}: made on {made_on or 'a CPU not recorded'}, here {here}")
+            np.testing.assert_allclose(
+                getattr(again, k),
+                getattr(ds, k)[rows],
+                rtol=0.0,
+                atol=OTHER_CPU_ATOL,
+                err_msg=f"{k}: made on {made_on or 'a CPU not recorded'}, here {here}",
+            )
 
 
 def test_first_shard_regenerates_bit_for_bit():
@@ -130,8 +138,9 @@ def test_shipped_file_is_used_only_for_its_own_hash(tmp_path, monkeypatch, caplo
     assert "using the shipped" in caplog.text
     np.testing.assert_array_equal(got.s_next, made.s_next)
     # another data config: the shipped file is named as made by another configuration, and not used
-    other = train_mod._as_config({"progress": False, "data": {"n_batches": 1, "batch_size": 4, "max_actions": 4,
-                                                                     "seed": 5}})
+    other = train_mod._as_config(
+        {"progress": False, "data": {"n_batches": 1, "batch_size": 4, "max_actions": 4, "seed": 5}}
+    )
     caplog.clear()
     with caplog.at_level(logging.INFO, logger="dynamics.train"), pytest.raises(AssertionError, match="simulator ran"):
         load_or_generate_dataset(other, tmp_path / "c")
@@ -155,8 +164,10 @@ def test_default_config_has_its_shipped_models():
     dh = cache_paths(cfg["dynamics"], None, cfg["world"])["data_hash"]
     for m, mh in members:
         path = train_mod.shipped_model_path(mh)
-        assert path.is_file(), (f"no shipped model for member seed {m.train.seed} of the default config (model hash "
-                                f"{mh}): refresh them with `python -m dynamics.shipped`")
+        assert path.is_file(), (
+            f"no shipped model for member seed {m.train.seed} of the default config (model hash "
+            f"{mh}): refresh them with `python -m dynamics.shipped`"
+        )
         model = LearnedDynamics.load(path, expected_hash=mh)
         assert model.info["data_hash"] == dh and model.info["config"] == m.to_dict()
 
@@ -165,8 +176,14 @@ def test_shipped_model_is_used_only_for_its_own_hash(tmp_path, monkeypatch, capl
     from dynamics.train import load_or_train
 
     gen = lambda cfg, **kw: synthetic_generator(cfg)  # noqa: E731
-    c = train_mod._as_config({"progress": False, "data": {"n_batches": 1, "batch_size": 4, "max_actions": 4},
-                              "model": {"hidden": [8], "ensemble": 1}, "train": {"max_epochs": 2, "patience": 2}})
+    c = train_mod._as_config(
+        {
+            "progress": False,
+            "data": {"n_batches": 1, "batch_size": 4, "max_actions": 4},
+            "model": {"hidden": [8], "ensemble": 1},
+            "train": {"max_epochs": 2, "patience": 2},
+        }
+    )
     made = load_or_train(c, tmp_path / "a", generator=gen)
     mh = cache_paths(c, tmp_path / "a")["model_hash"]
     _ship(monkeypatch, tmp_path, cache_paths(c, tmp_path / "a")["checkpoint"], lambda: train_mod.shipped_model_path(mh))

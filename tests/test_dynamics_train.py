@@ -56,8 +56,10 @@ def test_seeded_training_is_deterministic(loss):
 
 def test_cosine_schedule_anneals_the_step_size_to_zero():
     ds = synthetic_transitions(60, n_steps=3, seed=3)
-    runs = {s: fit(ds, SMALL, TrainConfig(max_epochs=6, patience=6, batch_size=32, seed=5, lr=2e-3, lr_schedule=s))
-            for s in ("constant", "cosine")}
+    runs = {
+        s: fit(ds, SMALL, TrainConfig(max_epochs=6, patience=6, batch_size=32, seed=5, lr=2e-3, lr_schedule=s))
+        for s in ("constant", "cosine")
+    }
     assert runs["constant"].info["training"]["final_lr"] == pytest.approx(2e-3)
     assert runs["cosine"].info["training"]["final_lr"] == pytest.approx(0.0, abs=1e-12)
     a, b = (runs[s].state_dict() for s in ("constant", "cosine"))
@@ -95,8 +97,12 @@ def counted(monkeypatch):
 
 
 def tiny(**over) -> dict:
-    d = {"progress": False, "data": {"n_batches": 1, "batch_size": 16, "max_actions": 4, "pour_batches": 0},
-         "model": {"hidden": [16], "ensemble": 1}, "train": {"max_epochs": 3, "patience": 3}}
+    d = {
+        "progress": False,
+        "data": {"n_batches": 1, "batch_size": 16, "max_actions": 4, "pour_batches": 0},
+        "model": {"hidden": [16], "ensemble": 1},
+        "train": {"max_epochs": 3, "patience": 3},
+    }
     for k, v in over.items():
         d[k] = {**d.get(k, {}), **v}
     return d

@@ -14,7 +14,7 @@ T1 = {"num_threads": 1, "max_iters": 2}  # see tests/test_mde_model.py
 def _data(n: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
     g = torch.Generator().manual_seed(seed)
     X = torch.rand(n, 3, generator=g, dtype=torch.float64)
-    y = (0.4 + torch.sin(3 * X[:, 0]) * 0.2 + (0.02 + 0.2 * X[:, 1]) * torch.randn(n, generator=g, dtype=torch.float64))
+    y = 0.4 + torch.sin(3 * X[:, 0]) * 0.2 + (0.02 + 0.2 * X[:, 1]) * torch.randn(n, generator=g, dtype=torch.float64)
     return X, y.clamp_min(0.0)
 
 

@@ -60,9 +60,10 @@ def test_heteroscedastic_is_calibrated_and_beats_homoscedastic(fitted, case):
     # the noise model must actually have learned the input dependence
     assert c["het"].noise_model is not None and c["hom"].noise_model is None
     assert len(c["het"].fit_info["log_ml_history"]) >= 1
-    assert c["het"].fit_info["log_ml_history"][c["het"].fit_info["selected_iteration"] - 1] > c["het"].fit_info[
-        "homoscedastic_log_ml"
-    ]
+    assert (
+        c["het"].fit_info["log_ml_history"][c["het"].fit_info["selected_iteration"] - 1]
+        > c["het"].fit_info["homoscedastic_log_ml"]
+    )
 
 
 def test_homoscedastic_noise_is_constant(fitted):
@@ -235,8 +236,10 @@ def test_mll_closure_matches_gpytorch():
     for nu, priors in ((0.5, "none"), (1.5, "none"), (2.5, "none"), (2.5, "gamma"), (2.5, "lognormal")):
         for Yvar in (None, 0.001 + 0.01 * torch.rand(60, dtype=torch.float64)):
             m = build_mean_gp(X, y, nu=nu, bounds=data_bounds(X), noise_floor=1e-4, train_Yvar=Yvar, priors=priors)
-            assert len(list(m.named_priors())) == {"none": 0, "gamma": 3 if Yvar is None else 2,
-                                                 "lognormal": 2 if Yvar is None else 1}[priors]
+            assert (
+                len(list(m.named_priors()))
+                == {"none": 0, "gamma": 3 if Yvar is None else 2, "lognormal": 2 if Yvar is None else 1}[priors]
+            )
             m.covar_module.base_kernel.lengthscale = torch.tensor([[0.3, 0.5, 2.0, 0.7]])
             m.mean_module.raw_constant.requires_grad_(True)
             m.train()
@@ -378,6 +381,9 @@ def test_gamma_priors_keep_lengthscales_in_range_and_survive_saving(tmp_path):
     lognormal = GPMDE(max_iters=2, hyperparameter_priors="lognormal", **T1).fit(X, y)
     lognormal.save(path)
     torch.testing.assert_close(GPMDE.load(path).predict(X[:20]), lognormal.predict(X[:20]))
-    with pytest.raises(ValueError, match=r"hyperparameter_priors must be one of \('none', 'gamma', 'lognormal'\), "
-                                         r"got 'cauchy'"):
+    with pytest.raises(
+        ValueError,
+        match=r"hyperparameter_priors must be one of \('none', 'gamma', 'lognormal'\), "
+        r"got 'cauchy'",
+    ):
         GPMDE(hyperparameter_priors="cauchy")

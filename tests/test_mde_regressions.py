@@ -27,7 +27,8 @@ def test_fit_survives_abnormal_line_search_stops():
 
 def _explicit_gp(model, Xq):
     """A fitted SingleTaskGP's kernel from explicit float64 differences (no |a|^2 + |b|^2 - 2ab expansion), the
-    reference when lengthscales span 1e-11 to 1e4: (k, K with the training noise, transformed train and query inputs)."""
+    reference when lengthscales span 1e-11 to 1e4: (k, K with the training noise, transformed train and query
+    inputs)."""
     from mde.gp import matern_from_dist, train_inputs_transformed
 
     ls = model.covar_module.base_kernel.lengthscale.detach().reshape(-1)

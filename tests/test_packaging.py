@@ -30,8 +30,11 @@ def test_slurm_presets_compose_and_requeue_on_timeout(preset, gpus):
 
     register_resolvers()
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[f"hydra/launcher={preset}", "hydra.launcher.partition=p"],
-                      return_hydra_config=True)
+        cfg = compose(
+            config_name="config",
+            overrides=[f"hydra/launcher={preset}", "hydra.launcher.partition=p"],
+            return_hydra_config=True,
+        )
     launcher = cfg.hydra.launcher
     assert launcher._target_.endswith("submitit_launcher.SlurmLauncher") and launcher.partition == "p"
     assert launcher.gpus_per_node == gpus and launcher.cpus_per_task >= 2 and launcher.max_num_timeout >= 1

@@ -32,14 +32,25 @@ def test_yaml_mirrors_dataclass_defaults():
     d = yaml.safe_load(YAML.read_text())
     assert d.pop("workers") == "auto"  # process count of planner.pool, deliberately not a PlannerConfig field
     derived = {k for k, v in d.items() if isinstance(v, str) and v.startswith("${")}
-    assert derived == {"move_x", "move_y", "pour_theta", "pour_hold", "max_actions", "spill_limit", "d_max",
-                       "n_candidates", "time_budget", "propagation_budget"}
+    assert derived == {
+        "move_x",
+        "move_y",
+        "pour_theta",
+        "pour_hold",
+        "max_actions",
+        "spill_limit",
+        "d_max",
+        "n_candidates",
+        "time_budget",
+        "propagation_budget",
+    }
     default = PlannerConfig().to_dict()
     assert set(default) - set(d) == {"beta", "seed", "goal_tol", "accept_tol", "move_lattice"}
     # the run's state box reaches the world's move range (y up to 0.36 m); the library's default moves stop at 0.35
     assert d.pop("state_high") == [0.55, 0.36, 2.4, 1.0, 1.0] and default["state_high"] == [0.55, 0.35, 2.4, 1.0, 1.0]
-    assert {k: v for k, v in d.items() if k not in derived} == {k: v for k, v in default.items()
-                                                                if k in d and k not in derived}
+    assert {k: v for k, v in d.items() if k not in derived} == {
+        k: v for k, v in default.items() if k in d and k not in derived
+    }
 
 
 def test_design_defaults():
@@ -59,25 +70,31 @@ def test_overrides_and_omegaconf():
     assert c.n_candidates == 3 and c.move_x == (0.1, 0.2) and c.seed == 7
 
 
-@pytest.mark.parametrize("kw, match", [
-    (dict(bogus=1), r"unknown planner config key\(s\) \['bogus'\]"),
-    (dict(move_x=(0.5, 0.1)), r"move_x must be a finite range with low <= high"),
-    (dict(pour_hold=(-1.0, 1.0)), r"pour_hold low end -1.0 is below 0.0"),
-    (dict(p_move=1.5), r"p_move=1.5 outside allowed range \[0, 1\]"),
-    (dict(max_actions=0), r"max_actions=0 must be >= 1"),
-    (dict(goal_tol=0.0), r"goal_tol=0.0 must be > 0"),
-    (dict(batch_min=64, batch_max=16), r"batch_min <= batch_max"),
-    (dict(distance_weights=(0, 0, 0, 0)), r"distance_weights"),
-    (dict(ompl_log_level="loud"), r"ompl_log_level='loud'"),
-    (dict(torch_threads=None), r"torch_threads=None must be an integer >= 1, or 0 to leave torch's setting alone"),
-    (dict(torch_threads=-1), r"torch_threads=-1 must be an integer >= 1, or 0"),
-    (dict(problems={"goal": (0.2, 1.2)}), r"unknown planner config key\(s\) \['problems'\]"),
-    (dict(move_y=(0.03, 0.4)), r"move_y=\[0.03, 0.4\] reaches outside the state bounds of y \[0.03, 0.35\]"),
-    (dict(pour_theta=(0.0, 2.5)), r"pour_theta=\[0.0, 2.5\] reaches outside the state bounds of theta"),
-    (dict(move_lattice=-0.01), r"move_lattice=-0.01: allowed 0 \(continuous move targets\) or a spacing > 0 m"),
-    (dict(move_lattice="x"), r"move_lattice='x': allowed 0"),
-    (dict(move_lattice=0.01, move_x=(0.053, 0.057)), r"move_x=\[0.053, 0.057\] holds no multiple of move_lattice=0.01"),
-])
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        (dict(bogus=1), r"unknown planner config key\(s\) \['bogus'\]"),
+        (dict(move_x=(0.5, 0.1)), r"move_x must be a finite range with low <= high"),
+        (dict(pour_hold=(-1.0, 1.0)), r"pour_hold low end -1.0 is below 0.0"),
+        (dict(p_move=1.5), r"p_move=1.5 outside allowed range \[0, 1\]"),
+        (dict(max_actions=0), r"max_actions=0 must be >= 1"),
+        (dict(goal_tol=0.0), r"goal_tol=0.0 must be > 0"),
+        (dict(batch_min=64, batch_max=16), r"batch_min <= batch_max"),
+        (dict(distance_weights=(0, 0, 0, 0)), r"distance_weights"),
+        (dict(ompl_log_level="loud"), r"ompl_log_level='loud'"),
+        (dict(torch_threads=None), r"torch_threads=None must be an integer >= 1, or 0 to leave torch's setting alone"),
+        (dict(torch_threads=-1), r"torch_threads=-1 must be an integer >= 1, or 0"),
+        (dict(problems={"goal": (0.2, 1.2)}), r"unknown planner config key\(s\) \['problems'\]"),
+        (dict(move_y=(0.03, 0.4)), r"move_y=\[0.03, 0.4\] reaches outside the state bounds of y \[0.03, 0.35\]"),
+        (dict(pour_theta=(0.0, 2.5)), r"pour_theta=\[0.0, 2.5\] reaches outside the state bounds of theta"),
+        (dict(move_lattice=-0.01), r"move_lattice=-0.01: allowed 0 \(continuous move targets\) or a spacing > 0 m"),
+        (dict(move_lattice="x"), r"move_lattice='x': allowed 0"),
+        (
+            dict(move_lattice=0.01, move_x=(0.053, 0.057)),
+            r"move_x=\[0.053, 0.057\] holds no multiple of move_lattice=0.01",
+        ),
+    ],
+)
 def test_bad_config_values(kw, match):
     with pytest.raises(ValueError, match=match):
         PlannerConfig.from_dict(kw)

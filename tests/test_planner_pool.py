@@ -62,16 +62,17 @@ def requests() -> list[PlanRequest]:
     return reqs
 
 
-
-
 def in_process(dynamics, mde, reqs):
     """The reference: the Planner methods called directly, one after another."""
     planner = Planner(dynamics, mde, CFG)
     out = []
     for r in reqs:
         kw = dict(beta=r.beta, d_max=r.d_max, seed=r.seed)
-        out.append(planner.plan(r.start, r.goal, **kw) if r.kind == "plan"
-                   else planner.plan_candidates(r.start, r.goal, n=r.n, **kw))
+        out.append(
+            planner.plan(r.start, r.goal, **kw)
+            if r.kind == "plan"
+            else planner.plan_candidates(r.start, r.goal, n=r.n, **kw)
+        )
     return out
 
 
@@ -88,7 +89,7 @@ def test_workers_give_the_in_process_results_bit_for_bit(pool, dynamics, standin
     if which != "none":
         assert any(not r.found for r in want if isinstance(r, PlanResult))  # ... and the precondition at work
     for r in got:  # results come back read-only, as in-process
-        for t in (r.candidates if isinstance(r, CandidateSet) else [r.trajectory]):
+        for t in r.candidates if isinstance(r, CandidateSet) else [r.trajectory]:
             assert t is None or not t.actions.flags.writeable
     assert PlanPool(dynamics, CFG, workers=1).run(reqs, mde) and not PlanPool(dynamics, CFG, 0).parallel
 
@@ -174,8 +175,15 @@ def test_workers_key_is_validated_before_compute_and_left_out_of_the_digest(tmp_
     from active.planner_setup import build_planner_config, planner_workers
     from active.run import compose_config, run_experiment
 
-    cfg = compose_config(["experiment=tiny", "wandb.mode=disabled", "progress=false", "planner.workers=0",
-                          f"dynamics.cache_root={tmp_path / 'cache'}"])
+    cfg = compose_config(
+        [
+            "experiment=tiny",
+            "wandb.mode=disabled",
+            "progress=false",
+            "planner.workers=0",
+            f"dynamics.cache_root={tmp_path / 'cache'}",
+        ]
+    )
     with pytest.raises(ValueError, match=r"^planner\.workers = 0: allowed"):
         run_experiment(cfg, tmp_path / "out")
     assert not (tmp_path / "out").exists() and not (tmp_path / "cache").exists()
@@ -205,7 +213,6 @@ def test_contact_aware_dynamics_reaches_workers_intact():
     s = torch.tensor([[0.4, 0.1, 0.0, 1.0, 0.0]] * 3, dtype=torch.float32)
     a = torch.tensor([[0.0, 0.1, 0.2], [1.0, 1.5, 0.5], [0.0, 0.5, 0.05]], dtype=torch.float32)
     assert torch.equal(copy.predict(s, a), dyn.predict(s, a))
-
 
 
 def test_an_mde_that_does_not_pickle_is_planned_in_process(dynamics, standin_mde, tmp_path):

@@ -39,8 +39,13 @@ def check_trajectory(traj, robot, mde, g, tol, beta, d_max, config):
     assert np.all(traj.mu + beta * traj.sigma < d_max)
     assert not mde.path_hits_box(X).any()
     # the planner feeds the model float32 (torch's default dtype; the toy is not an nn.Module)
-    nxt = robot.predict(torch.tensor(traj.states[:-1], dtype=torch.float32),
-                        torch.tensor(traj.actions, dtype=torch.float32)).double().numpy()
+    nxt = (
+        robot.predict(
+            torch.tensor(traj.states[:-1], dtype=torch.float32), torch.tensor(traj.actions, dtype=torch.float32)
+        )
+        .double()
+        .numpy()
+    )
     np.testing.assert_allclose(traj.states[1:], np.clip(nxt, config.state_low, config.state_high), atol=1e-12)
     assert goal_reached(traj.final_state, g, tol, config.spill_limit)
     assert not any(goal_reached(s, g, tol, config.spill_limit) for s in traj.states[:-1])
@@ -103,7 +108,7 @@ def test_candidates_are_distinct_and_reproducible(toy):
     assert len(cs.runs) == 4
     assert len(cs) == sum(r.found for r in cs.runs) >= 3
     for i, a in enumerate(cs.candidates):
-        for b in cs.candidates[i + 1:]:
+        for b in cs.candidates[i + 1 :]:
             assert not a.same_as(b)
     again = planner.plan_candidates(START, GOAL, n=4, beta=BETA, d_max=D_MAX, seed=3)
     assert len(again) == len(cs)
@@ -208,29 +213,35 @@ def test_pouring_standin_plan_is_consistent():
     np.testing.assert_array_equal(t.mu, 0.0)
 
 
-@pytest.mark.parametrize("start, match", [
-    ([0.7, 0.1, 0.0, 1.0, 0.0], r"x=0\.7 outside allowed range \[0\.05, 0\.55\]"),
-    ([0.3, 0.0, 0.0, 1.0, 0.0], r"y=0\.0 outside allowed range \[0\.03, 0\.35\]"),
-    ([0.3, 0.1, 3.0, 1.0, 0.0], r"theta=3\.0 outside allowed range"),
-    ([0.3, 0.1, 0.0, 1.2, 0.0], r"v_ctrl=1\.2 outside allowed range \[0\.0, 1\.0\]"),
-    ([0.3, 0.1, 0.0, 1.0, float("nan")], r"v_tgt=nan outside allowed range"),
-    ([0.3, 0.1, 0.0, 1.0], r"state vector of 5"),
-])
+@pytest.mark.parametrize(
+    "start, match",
+    [
+        ([0.7, 0.1, 0.0, 1.0, 0.0], r"x=0\.7 outside allowed range \[0\.05, 0\.55\]"),
+        ([0.3, 0.0, 0.0, 1.0, 0.0], r"y=0\.0 outside allowed range \[0\.03, 0\.35\]"),
+        ([0.3, 0.1, 3.0, 1.0, 0.0], r"theta=3\.0 outside allowed range"),
+        ([0.3, 0.1, 0.0, 1.2, 0.0], r"v_ctrl=1\.2 outside allowed range \[0\.0, 1\.0\]"),
+        ([0.3, 0.1, 0.0, 1.0, float("nan")], r"v_tgt=nan outside allowed range"),
+        ([0.3, 0.1, 0.0, 1.0], r"state vector of 5"),
+    ],
+)
 def test_bad_start_raises(toy, start, match):
     robot, mde = toy
     with pytest.raises(ValueError, match=match):
         Planner(robot, mde).plan(start, 0.5)
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    (dict(goal=1.5), r"goal g=1\.5 outside allowed range \[0, 1\]"),
-    (dict(goal=-0.1), r"goal g=-0\.1 outside allowed range"),
-    (dict(goal=0.5, tol=0.0), r"tol=0\.0 must be > 0"),
-    (dict(goal=0.5, tol=-1), r"tol=-1 must be > 0"),
-    (dict(goal=0.5, beta=float("inf")), r"beta=inf must be finite"),
-    (dict(goal=0.5, time_budget=0), r"time_budget=0 must be > 0"),
-    (dict(goal=0.5, propagation_budget=0), r"propagation_budget=0 must be >= 1"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(goal=1.5), r"goal g=1\.5 outside allowed range \[0, 1\]"),
+        (dict(goal=-0.1), r"goal g=-0\.1 outside allowed range"),
+        (dict(goal=0.5, tol=0.0), r"tol=0\.0 must be > 0"),
+        (dict(goal=0.5, tol=-1), r"tol=-1 must be > 0"),
+        (dict(goal=0.5, beta=float("inf")), r"beta=inf must be finite"),
+        (dict(goal=0.5, time_budget=0), r"time_budget=0 must be > 0"),
+        (dict(goal=0.5, propagation_budget=0), r"propagation_budget=0 must be >= 1"),
+    ],
+)
 def test_bad_goal_or_budget_raises(toy, kwargs, match):
     robot, mde = toy
     with pytest.raises(ValueError, match=match):
@@ -326,7 +337,9 @@ def test_a_cpu_model_with_a_numpy_path_is_planned_through_it():
 
         def predict_np(self, s, a):
             NumpyTwin.calls += 1
-            return self.predict(torch.as_tensor(s, dtype=torch.float64), torch.as_tensor(a, dtype=torch.float64)).numpy()
+            return self.predict(
+                torch.as_tensor(s, dtype=torch.float64), torch.as_tensor(a, dtype=torch.float64)
+            ).numpy()
 
     cfg = PlannerConfig(propagation_budget=3000, time_budget=60.0)
     start = np.array([0.45, 0.2, 0.0, 1.0, 0.0])

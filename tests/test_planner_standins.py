@@ -52,8 +52,9 @@ def test_pour_physics_is_plausible():
 def test_mlp_standin_is_close_to_analytic_and_seeded():
     rng = np.random.default_rng(0)
     s = torch.tensor(np.tile([0.4, 0.2, 0.0, 1.0, 0.0], (64, 1)), dtype=torch.float32)
-    a = torch.tensor(np.c_[rng.integers(0, 2, 64), rng.uniform(0.05, 0.5, 64), rng.uniform(0.05, 0.3, 64)],
-                     dtype=torch.float32)
+    a = torch.tensor(
+        np.c_[rng.integers(0, 2, 64), rng.uniform(0.05, 0.5, 64), rng.uniform(0.05, 0.3, 64)], dtype=torch.float32
+    )
     m1, m2 = StandInMLPDynamics(seed=1), StandInMLPDynamics(seed=1)
     out = m1.predict(s, a)
     torch.testing.assert_close(out, m2.predict(s, a))
@@ -86,9 +87,28 @@ def test_bench_quick_smoke(tmp_path, capsys):
     from benchmarks import planner as bench
 
     out = tmp_path / "bench.json"
-    rc = bench.main(["--problems", "2", "--mde", "standin", "--mde-points", "100", "--candidates", "2",
-                     "--candidate-problems", "1", "--unbatched-problems", "1", "--throughput-seconds", "0.02",
-                     "--time-budget", "0.2", "--out", str(out)])
+    rc = bench.main(
+        [
+            "--problems",
+            "2",
+            "--mde",
+            "standin",
+            "--mde-points",
+            "100",
+            "--candidates",
+            "2",
+            "--candidate-problems",
+            "1",
+            "--unbatched-problems",
+            "1",
+            "--throughput-seconds",
+            "0.02",
+            "--time-budget",
+            "0.2",
+            "--out",
+            str(out),
+        ]
+    )
     assert rc == 0
     text = capsys.readouterr().out
     assert "propagations/s" in text and "median plan time" in text and "TARGET" in text

@@ -15,7 +15,6 @@ import socket
 import stat
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -96,8 +95,10 @@ def test_adopt_and_orphan_removal(tmp_path, umask027):
 
 
 # ------------------------------------------------------------------ the run lock
-HOLDER = ("import sys, time\nfrom active.runlock import RunLock\nlock = RunLock(sys.argv[1])\nlock.acquire()\n"
-          "print('locked', flush=True)\ntime.sleep(120)\n")
+HOLDER = (
+    "import sys, time\nfrom active.runlock import RunLock\nlock = RunLock(sys.argv[1])\nlock.acquire()\n"
+    "print('locked', flush=True)\ntime.sleep(120)\n"
+)
 
 
 def _start_holder(folder: Path) -> subprocess.Popen:
@@ -112,8 +113,11 @@ def test_lock_refuses_a_live_owner_and_takes_over_a_dead_one(tmp_path, caplog):
     try:
         owner = read_owner(tmp_path)
         assert owner["pid"] == holder.pid and owner["host"] == socket.gethostname()
-        with pytest.raises(RunLockedError, match=rf"in use by another run: pid {holder.pid} on host "
-                                                 rf"{socket.gethostname()}.*Wait for it to finish"):
+        with pytest.raises(
+            RunLockedError,
+            match=rf"in use by another run: pid {holder.pid} on host "
+            rf"{socket.gethostname()}.*Wait for it to finish",
+        ):
             RunLock(tmp_path).acquire()
     finally:
         holder.send_signal(signal.SIGKILL)
@@ -168,11 +172,18 @@ def test_resolution_against_the_geometry():
     world = WorldConfig.load()
     check_geometry(world)
     assert max_dx(world)[0] == pytest.approx(0.01)  # the cup walls (20 mm) must be >= 2 cells
-    check_geometry(WorldConfig.load(Path(REPO / "configs" / "world" / "default.yaml"),
-                                    sim={**world.sim, "dx": 0.005, "dt": 2e-4, "wall_cells": 6}))  # world=fine
+    check_geometry(
+        WorldConfig.load(
+            Path(REPO / "configs" / "world" / "default.yaml"),
+            sim={**world.sim, "dx": 0.005, "dt": 2e-4, "wall_cells": 6},
+        )
+    )  # world=fine
     coarse = WorldConfig.load(sim={**world.sim, "dx": 0.05})  # the probe's 50 mm cells: cup 70 mm wide
-    with pytest.raises(ValueError, match=r"world.sim.dx = 0.05: too coarse .*cup walls.*tank walls.*"
-                                         r"Allowed: 0 < dx <= 0.01 m"):
+    with pytest.raises(
+        ValueError,
+        match=r"world.sim.dx = 0.05: too coarse .*cup walls.*tank walls.*"
+        r"Allowed: 0 < dx <= 0.01 m",
+    ):
         check_geometry(coarse)
     near = WorldConfig.load(problems={**world.problems, "start_x": [0.25, 0.5]})
     with pytest.raises(ValueError, match=r"world.problems.start_x = \[0.25, 0.5\].*overlaps the target body"):
@@ -195,9 +206,15 @@ def test_unwritable_output_is_found_before_compute(tmp_path):
 
 # ------------------------------------------------------------------ what a directory may reuse
 def _cfg(**over) -> dict:
-    cfg = {"seed": 0, "method": "all", "progress": False, "wandb": {"mode": "disabled"},
-           "experiment": {"name": "tiny", "iterations": 2, "methods": ["a"]},
-           "dynamics": {"cache_root": "/old/cache", "progress": False, "data": {"seed": 0}}, "mde": {"nu": 2.5}}
+    cfg = {
+        "seed": 0,
+        "method": "all",
+        "progress": False,
+        "wandb": {"mode": "disabled"},
+        "experiment": {"name": "tiny", "iterations": 2, "methods": ["a"]},
+        "dynamics": {"cache_root": "/old/cache", "progress": False, "data": {"seed": 0}},
+        "mde": {"nu": 2.5},
+    }
     for k, v in over.items():
         cfg[k] = {**cfg[k], **v} if isinstance(v, dict) else v
     return cfg
@@ -214,8 +231,16 @@ def test_digests_ignore_the_cache_location():
 
 def _write_state(folder: Path, digest: str, completed: int = 1) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
-    save_checked(folder / "state.pt", {"format": RUN_FORMAT, "version": RUN_FORMAT_VERSION, "digest": digest,
-                                       "completed": completed, "mde_path": None})
+    save_checked(
+        folder / "state.pt",
+        {
+            "format": RUN_FORMAT,
+            "version": RUN_FORMAT_VERSION,
+            "digest": digest,
+            "completed": completed,
+            "mde_path": None,
+        },
+    )
     for name in ("results.csv", "categories.csv", "dataset.pt"):
         (folder / name).write_text("x")
     return folder / "state.pt"
@@ -226,8 +251,11 @@ def test_directory_of_another_configuration_is_refused_with_the_differences(tmp_
     safeio.write_json(tmp_path / "config.json", old)
     _write_state(tmp_path / "a", config_digest(old), completed=2)
     before = (tmp_path / "config.json").read_bytes()
-    with pytest.raises(RunDirectoryError, match=r"holds results of a different configuration \(a \(2 iterations\)\)"
-                                                r": it differs in seed: 0 -> 1\. Nothing was changed"):
+    with pytest.raises(
+        RunDirectoryError,
+        match=r"holds results of a different configuration \(a \(2 iterations\)\)"
+        r": it differs in seed: 0 -> 1\. Nothing was changed",
+    ):
         check_run_directory(tmp_path, _cfg(seed=1))
     assert (tmp_path / "config.json").read_bytes() == before
     assert check_run_directory(tmp_path, _cfg(dynamics={"cache_root": "/moved"}))  # resumable
@@ -240,8 +268,11 @@ def test_fewer_iterations_than_a_directory_holds_are_refused(tmp_path):
     _write_state(tmp_path / "a", config_digest(cfg), completed=2)
     assert check_run_directory(tmp_path, cfg)
     before = (tmp_path / "config.json").read_bytes()
-    with pytest.raises(RunDirectoryError, match=r"experiment.iterations = 1: .* holds more completed iterations "
-                                                r"\(a \(2 iterations\)\)\. Nothing was changed"):
+    with pytest.raises(
+        RunDirectoryError,
+        match=r"experiment.iterations = 1: .* holds more completed iterations "
+        r"\(a \(2 iterations\)\)\. Nothing was changed",
+    ):
         check_run_directory(tmp_path, _cfg(experiment={"iterations": 1}))
     assert (tmp_path / "config.json").read_bytes() == before
 
@@ -292,16 +323,20 @@ def test_damage_inside_a_tensor_is_refused_naming_the_file(tmp_path):
     raw = bytearray(path.read_bytes())
     at = raw.find(torch.arange(4096.0)[1000:1002].numpy().tobytes())  # inside X's storage
     assert at > 0
-    raw[at:at + 8] = b"\x00" * 8
+    raw[at : at + 8] = b"\x00" * 8
     path.write_bytes(bytes(raw))
     with pytest.raises(RunFileError, match=rf"{path} is damaged .*delete it and run the same command again"):
         load_calibration(path, _cfg())
 
 
-@pytest.mark.parametrize("damage, why", [
-    (lambda b: b[: len(b) - 7], "fewer fields than its header"),
-    (lambda b: b + b"1,2,3,4,5,6,7,8,9,10,11,12\n", "more fields than its header"),
-    (lambda b: b.replace(b"method", b"m\xffethod", 1), "is not a readable CSV")])
+@pytest.mark.parametrize(
+    "damage, why",
+    [
+        (lambda b: b[: len(b) - 7], "fewer fields than its header"),
+        (lambda b: b + b"1,2,3,4,5,6,7,8,9,10,11,12\n", "more fields than its header"),
+        (lambda b: b.replace(b"method", b"m\xffethod", 1), "is not a readable CSV"),
+    ],
+)
 def test_a_damaged_csv_is_refused_naming_the_file_and_line(tmp_path, damage, why):
     path = tmp_path / "results.csv"
     path.write_bytes(b"method,seed,iteration\nrandom_plan,0,1\nrandom_plan,0,2\n")
@@ -316,8 +351,11 @@ def test_damaged_calibration_set_names_the_file_and_the_fix(tmp_path, damage):
     path = tmp_path / "calibration_set.pt"
     save_calibration(path, _set(0.0), _cfg())
     path.write_bytes(path.read_bytes()[:200] if damage == "truncate" else b"\x80\x02garbage")
-    with pytest.raises(RunFileError, match=rf"{path} is unreadable .*delete it and run the same command again: it "
-                                           r"is rebuilt from the configuration") as e:
+    with pytest.raises(
+        RunFileError,
+        match=rf"{path} is unreadable .*delete it and run the same command again: it "
+        r"is rebuilt from the configuration",
+    ) as e:
         load_calibration(path, _cfg())
     assert "weights_only" not in str(e.value)
 
@@ -334,8 +372,9 @@ def fitted_mde(tmp_path_factory):
     return mde, path, X
 
 
-@pytest.mark.parametrize("damage,reason", [("truncate", "truncated or damaged"),
-                                           ("garbage", "not a torch file written by this code")])
+@pytest.mark.parametrize(
+    "damage,reason", [("truncate", "truncated or damaged"), ("garbage", "not a torch file written by this code")]
+)
 def test_damaged_mde_checkpoint_names_the_file(tmp_path, fitted_mde, damage, reason):
     from mde import GPMDE
 
@@ -386,8 +425,12 @@ def test_dynamics_cache_finishes_after_a_kill_and_removes_orphans(tmp_path, monk
         calls.append("fit")
         return real_fit(*a, **k)
 
-    cfg = {"progress": False, "data": {"n_batches": 1, "batch_size": 8, "max_actions": 4, "pour_batches": 0},
-           "model": {"hidden": [8], "ensemble": 1}, "train": {"max_epochs": 2, "patience": 2}}
+    cfg = {
+        "progress": False,
+        "data": {"n_batches": 1, "batch_size": 8, "max_actions": 4, "pour_batches": 0},
+        "model": {"hidden": [8], "ensemble": 1},
+        "train": {"max_epochs": 2, "patience": 2},
+    }
     monkeypatch.setattr("dynamics.data.generate_source_dataset", gen)
     monkeypatch.setattr(train_mod, "fit", counting_fit)
     load_or_train(cfg, tmp_path)

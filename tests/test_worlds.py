@@ -182,11 +182,12 @@ def test_plant_on_contact_hold_blocks_only_that_action(cfg):
     assert (stop.executed, stop.blocked, stop.stuck_on) == (1, [0], "plant")
     assert (held.executed, held.blocked, held.stuck_on, held.stuck) == (3, [0], "plant", True)
     k = held.action_end[0]
-    np.testing.assert_array_equal(held.poses[:k + 1], stop.poses)  # the same blocked move
+    np.testing.assert_array_equal(held.poses[: k + 1], stop.poses)  # the same blocked move
     assert held.poses[k, 0] > 0.2  # held at the leaf, short of x = 0.15
     np.testing.assert_allclose(held.poses[held.action_end[1], :2], [0.42, 0.24])  # then the next move runs
-    rigid = plan_schedule(hold, np.array([0.42, 0.20, 0.0]), np.array([move(0.22, 0.07), pour(0.5, 0.2)]), obst,
-                          cup_boundary(cfg))
+    rigid = plan_schedule(
+        hold, np.array([0.42, 0.20, 0.0]), np.array([move(0.22, 0.07), pour(0.5, 0.2)]), obst, cup_boundary(cfg)
+    )
     assert (rigid.executed, rigid.blocked, rigid.stuck_on) == (1, [0], "target")  # the target cup still ends it
     with pytest.raises(ValueError, match=r"world.plant.on_contact = 'bend': allowed stop, hold, stuck"):
         WorldConfig.from_mapping({**dataclasses.asdict(cfg), "plant": {**cfg.plant, "on_contact": "bend"}})
@@ -200,8 +201,13 @@ def test_plant_on_contact_stuck_records_the_actions_left_without_effect(cfg, run
     assert cfg.plant_on_contact == "stuck"  # the default: ``runs`` holds its trajectories
     ex = PouringExecutor(dataclasses.replace(cfg, plant={**cfg.plant, "on_contact": "stop"}))
     try:
-        got = ex.run("target", np.array([SCRIPTS[3][0], SCRIPTS[1][0]]), [SCRIPTS[3][1], SCRIPTS[1][1]],
-                     goals=[0.5, 0.5], slots=[3, 1])
+        got = ex.run(
+            "target",
+            np.array([SCRIPTS[3][0], SCRIPTS[1][0]]),
+            [SCRIPTS[3][1], SCRIPTS[1][1]],
+            goals=[0.5, 0.5],
+            slots=[3, 1],
+        )
     finally:
         ex.close()
     stop_through_leaf, stop_clear = got
@@ -218,16 +224,19 @@ def test_plant_on_contact_stuck_records_the_actions_left_without_effect(cfg, run
     assert len(clear.steps) == len(stop_clear.steps) and clear.category == stop_clear.category
 
 
-@pytest.mark.parametrize("kwargs,match", [
-    ({"world": "moon"}, "world = 'moon'"),
-    ({"actions": [[pour(3.0, 0.5)]]}, r"pour.theta = 3 outside its range \[0, 2.2\]"),
-    ({"actions": [[move(0.9, 0.1)]]}, "move.x"),
-    ({"actions": [[]]}, "non-empty"),
-    ({"actions": [[pour(0.1, 0.1)] * 7]}, "max_actions = 6"),
-    ({"actions": [[[5, 0.1, 0.1]]]}, "skill id 5"),
-    ({"goals": [1.5]}, r"fractions in \[0, 1\]"),
-    ({"starts": np.array([[0.30, 0.10]])}, "overlaps the target body"),
-])
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"world": "moon"}, "world = 'moon'"),
+        ({"actions": [[pour(3.0, 0.5)]]}, r"pour.theta = 3 outside its range \[0, 2.2\]"),
+        ({"actions": [[move(0.9, 0.1)]]}, "move.x"),
+        ({"actions": [[]]}, "non-empty"),
+        ({"actions": [[pour(0.1, 0.1)] * 7]}, "max_actions = 6"),
+        ({"actions": [[[5, 0.1, 0.1]]]}, "skill id 5"),
+        ({"goals": [1.5]}, r"fractions in \[0, 1\]"),
+        ({"starts": np.array([[0.30, 0.10]])}, "overlaps the target body"),
+    ],
+)
 def test_bad_input_fails_before_simulating(cfg, kwargs, match):
     ex = PouringExecutor(cfg)
     args = {"world": "target", "starts": np.array([[0.42, 0.2]]), "actions": [[pour(0.1, 0.1)]]}
@@ -268,7 +277,12 @@ def test_schedules_from_worker_processes_equal_the_threads_ones(cfg, monkeypatch
         assert ex._schedule_pool is not None  # the process path ran
         for a, b in zip(threads, procs):
             np.testing.assert_array_equal(a.poses, b.poses)
-            assert (a.action_end, a.executed, a.stuck_on, a.blocked) == (b.action_end, b.executed, b.stuck_on, b.blocked)
+            assert (a.action_end, a.executed, a.stuck_on, a.blocked) == (
+                b.action_end,
+                b.executed,
+                b.stuck_on,
+                b.blocked,
+            )
         bad = starts.copy()
         bad[5] = [0.30, 0.10, 0.0]  # inside the target cup
         with pytest.raises(ValueError, match=r"starts\[5\].*overlaps the target body"):
@@ -283,10 +297,22 @@ def test_actions_come_back_as_executed_on_the_lattice(cfg):
     transition pairs the outcome with the action that produced it; pours and continuous worlds are untouched."""
     from sim.skills import validate_actions
 
-    lat = WorldConfig.from_mapping({**cfg.__dict__, "controlled_cup": cfg.controlled_cup.__dict__,
-                                    "target_cup": cfg.target_cup.__dict__, "skills": {**cfg.skills, "lattice": 0.01}})
-    cont = WorldConfig.from_mapping({**cfg.__dict__, "controlled_cup": cfg.controlled_cup.__dict__,
-                                     "target_cup": cfg.target_cup.__dict__, "skills": {**cfg.skills, "lattice": 0.0}})
+    lat = WorldConfig.from_mapping(
+        {
+            **cfg.__dict__,
+            "controlled_cup": cfg.controlled_cup.__dict__,
+            "target_cup": cfg.target_cup.__dict__,
+            "skills": {**cfg.skills, "lattice": 0.01},
+        }
+    )
+    cont = WorldConfig.from_mapping(
+        {
+            **cfg.__dict__,
+            "controlled_cup": cfg.controlled_cup.__dict__,
+            "target_cup": cfg.target_cup.__dict__,
+            "skills": {**cfg.skills, "lattice": 0.0},
+        }
+    )
     seq = [move(0.3337, 0.2149), pour(1.234, 0.567)]
     (a,) = validate_actions(lat, [seq])
     np.testing.assert_allclose(a, [[0, 0.33, 0.21], [1, 1.234, 0.567]], rtol=0, atol=1e-12)
@@ -297,8 +323,13 @@ def test_actions_come_back_as_executed_on_the_lattice(cfg):
 def test_parameters_clip_when_configured(cfg):
     from sim.skills import validate_actions
 
-    clipped = WorldConfig.from_mapping({**cfg.__dict__, "controlled_cup": cfg.controlled_cup.__dict__,
-                                        "target_cup": cfg.target_cup.__dict__,
-                                        "skills": {**cfg.skills, "clip_parameters": True}})
+    clipped = WorldConfig.from_mapping(
+        {
+            **cfg.__dict__,
+            "controlled_cup": cfg.controlled_cup.__dict__,
+            "target_cup": cfg.target_cup.__dict__,
+            "skills": {**cfg.skills, "clip_parameters": True},
+        }
+    )
     (a,) = validate_actions(clipped, [[pour(3.0, 2.0)]])
     np.testing.assert_allclose(a[0], [1, 2.2, 1.0])

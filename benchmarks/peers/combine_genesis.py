@@ -26,7 +26,10 @@ T_MIN = 0.8
 
 
 def load_mm() -> np.ndarray:
-    for p in (C.REPO / "sim/data/martin_moyce_1952_surge_front.csv", C.REPO.parent / "shared/data/martin_moyce_1952_surge_front.csv"):
+    for p in (
+        C.REPO / "sim/data/martin_moyce_1952_surge_front.csv",
+        C.REPO.parent / "shared/data/martin_moyce_1952_surge_front.csv",
+    ):
         if p.exists():
             rows = [ln for ln in p.read_text().splitlines() if ln and ln[0].isdigit()]
             return np.array([[float(v) for v in r.split(",")] for r in rows])
@@ -83,13 +86,19 @@ def main(argv=None) -> dict:
             b = max(rs, key=lambda r: r["particle_substeps_per_s"])
             best[s] = b
             row[s] = {
-                "particles": b["particles"], "particles_expected": b["particles_expected"], "dt": b["dt"],
-                "substeps": b["substeps"], "seconds": b["seconds"],
+                "particles": b["particles"],
+                "particles_expected": b["particles_expected"],
+                "dt": b["dt"],
+                "substeps": b["substeps"],
+                "seconds": b["seconds"],
                 "particle_substeps_per_s": b["particle_substeps_per_s"],
                 "rounds_particle_substeps_per_s": [r["particle_substeps_per_s"] for r in rs],
                 "rounds_loadavg": [{"start": r["loadavg_start"], "end": r["loadavg_end"]} for r in rs],
                 "setup_seconds": b.get("build_seconds", 0.0) + b.get("compile_seconds", 0.0),
-                "threads": b["threads"], "arch": b["arch"], "nan": b.get("nan"), "unstable": b.get("unstable"),
+                "threads": b["threads"],
+                "arch": b["arch"],
+                "nan": b.get("nan"),
+                "unstable": b.get("unstable"),
                 "front": b["front"],
                 "martin_moyce_error_max_low": mm_error(b["front"], mm),
             }
@@ -99,8 +108,14 @@ def main(argv=None) -> dict:
                 row[s]["config"] = b["config"]
                 row[s]["model"] = b["model"]
             else:
-                for k in ("genesis_version", "quadrants_version", "torch_version", "performance_mode",
-                          "genesis_settings", "model"):
+                for k in (
+                    "genesis_version",
+                    "quadrants_version",
+                    "torch_version",
+                    "performance_mode",
+                    "genesis_settings",
+                    "model",
+                ):
                     row[s][k] = b[k]
         if len(best) == 2:
             o, g = best["ours"], best["genesis"]
@@ -117,15 +132,16 @@ def main(argv=None) -> dict:
     first = min(all_runs, key=lambda r: r["_file"]) if all_runs else {}
     res = {
         "benchmark": "3D dam break (Martin & Moyce n^2 = 2 column across the tank), ours (sim.mpm.MPMSolver) vs "
-                     "Genesis MPM Liquid; particle-substeps/s = B * particles * substeps / timed seconds; best of "
-                     "the rounds, solvers run alternately (ours, genesis, ours, genesis) in separate processes",
+        "Genesis MPM Liquid; particle-substeps/s = B * particles * substeps / timed seconds; best of "
+        "the rounds, solvers run alternately (ours, genesis, ours, genesis) in separate processes",
         "command": args.command,
         "front_metrics": "Z = front / a against T = t sqrt(2 g / a), a = 0.1 m; p99: 99th percentile of particle x; "
-                         "max_low: furthest particle within 0.1 a of the floor (benchmarks/validate.py); differences are "
-                         f"mean |Z_genesis - Z_ours| / Z_ours over the samples with T >= {T_MIN}",
+        "max_low: furthest particle within 0.1 a of the floor (benchmarks/validate.py); differences are "
+        f"mean |Z_genesis - Z_ours| / Z_ours over the samples with T >= {T_MIN}",
         "loadavg_start": [float(v) for v in args.loadavg_start.split()] if args.loadavg_start else None,
-        "loadavg_end": ([float(v) for v in args.loadavg_end.split()] if args.loadavg_end
-                        else list(__import__("os").getloadavg())),
+        "loadavg_end": (
+            [float(v) for v in args.loadavg_end.split()] if args.loadavg_end else list(__import__("os").getloadavg())
+        ),
         "runs_wall_seconds": args.runs_seconds,
         "note": args.note or None,
         "raw_runs": str(args.raw),
@@ -137,8 +153,10 @@ def main(argv=None) -> dict:
     }
     C.write_json(args.out, res)
 
-    hdr = (f"{'dx mm':>6} {'B':>3} {'particles ours/gen':>19} {'dt':>7} {'substeps':>8} {'ours p-sub/s':>12} "
-           f"{'genesis p-sub/s':>15} {'ratio':>6} {'front p99':>9} {'front low':>9} {'to T':>5} {'M&M ours/gen':>13}")
+    hdr = (
+        f"{'dx mm':>6} {'B':>3} {'particles ours/gen':>19} {'dt':>7} {'substeps':>8} {'ours p-sub/s':>12} "
+        f"{'genesis p-sub/s':>15} {'ratio':>6} {'front p99':>9} {'front low':>9} {'to T':>5} {'M&M ours/gen':>13}"
+    )
     print(hdr)
     print("-" * len(hdr))
     for r in rows:
@@ -148,14 +166,16 @@ def main(argv=None) -> dict:
             return format(v, fmt) if isinstance(v, (int, float)) else "-"
 
         mmo, mmg = o.get("martin_moyce_error_max_low"), g.get("martin_moyce_error_max_low")
-        print(f"{r['dx'] * 1000:6.1f} {r['envs']:3d} {f(o.get('particles'), 'd'):>9}/{f(g.get('particles'), 'd'):<9} "
-              f"{f(o.get('dt', g.get('dt')), '.0e'):>7} {f(o.get('substeps', g.get('substeps')), 'd'):>8} "
-              f"{f(o.get('particle_substeps_per_s'), '.3g'):>12} {f(g.get('particle_substeps_per_s'), '.3g'):>15} "
-              f"{f(r.get('ratio_ours_over_genesis'), '.2f'):>6} "
-              f"{f(100 * r['front_mean_rel_diff_p99'] if r.get('front_mean_rel_diff_p99') is not None else None, '.1f'):>8}% "
-              f"{f(100 * r['front_mean_rel_diff_max_low'] if r.get('front_mean_rel_diff_max_low') is not None else None, '.1f'):>8}% "
-              f"{f(r.get('front_T_end'), '.1f'):>5} "
-              f"{f(100 * mmo if mmo is not None else None, '.1f'):>6}/{f(100 * mmg if mmg is not None else None, '.1f'):<5}%")
+        print(
+            f"{r['dx'] * 1000:6.1f} {r['envs']:3d} {f(o.get('particles'), 'd'):>9}/{f(g.get('particles'), 'd'):<9} "
+            f"{f(o.get('dt', g.get('dt')), '.0e'):>7} {f(o.get('substeps', g.get('substeps')), 'd'):>8} "
+            f"{f(o.get('particle_substeps_per_s'), '.3g'):>12} {f(g.get('particle_substeps_per_s'), '.3g'):>15} "
+            f"{f(r.get('ratio_ours_over_genesis'), '.2f'):>6} "
+            f"{f(100 * r['front_mean_rel_diff_p99'] if r.get('front_mean_rel_diff_p99') is not None else None, '.1f'):>8}% "  # noqa: E501 (a table row's format reads best on one line)
+            f"{f(100 * r['front_mean_rel_diff_max_low'] if r.get('front_mean_rel_diff_max_low') is not None else None, '.1f'):>8}% "  # noqa: E501 (a table row's format reads best on one line)
+            f"{f(r.get('front_T_end'), '.1f'):>5} "
+            f"{f(100 * mmo if mmo is not None else None, '.1f'):>6}/{f(100 * mmg if mmg is not None else None, '.1f'):<5}%"  # noqa: E501 (a table row's format reads best on one line)
+        )
     print(f"load average: start {res['loadavg_start']}  end {[round(v, 2) for v in res['loadavg_end']]}")
     print(f"wrote {args.out}")
     return res

@@ -89,8 +89,7 @@ def front_metrics(pos: np.ndarray, dx: float) -> dict:
     w = WALL_CELLS * dx
     x = pos[:, 0] - w
     low = pos[:, 1] < w + 0.1 * A
-    return {"p99": float(np.percentile(x, 99.0)),
-            "max_low": float(x[low].max()) if low.any() else float("nan")}
+    return {"p99": float(np.percentile(x, 99.0)), "max_low": float(x[low].max()) if low.any() else float("nan")}
 
 
 def new_front_record() -> dict:
@@ -110,8 +109,13 @@ def add_front(rec: dict, frame: int, dt: float, pos: np.ndarray, dx: float) -> N
 
 
 def machine_info() -> dict:
-    info = {"host": platform.node(), "machine": platform.machine(), "python": platform.python_version(),
-            "cpu_count": os.cpu_count(), "loadavg": list(os.getloadavg())}
+    info = {
+        "host": platform.node(),
+        "machine": platform.machine(),
+        "python": platform.python_version(),
+        "cpu_count": os.cpu_count(),
+        "loadavg": list(os.getloadavg()),
+    }
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):
@@ -124,10 +128,20 @@ def machine_info() -> dict:
 
 def scene_record(dx: float) -> dict:
     lo, hi = column_box(dx)
-    return {"interior_m": list(INTERIOR), "domain_m": list(domain_for(dx)), "wall_cells": WALL_CELLS,
-            "column_lo_m": list(lo), "column_hi_m": list(hi), "a_m": A, "particles_per_cell": PPC_1D**3,
-            "rho": RHO, "sound_speed_m_s": SOUND_SPEED, "bulk_modulus_Pa": BULK, "g": G,
-            "axes": "x along the tank, y up, z across (Genesis: z up, mapped)"}
+    return {
+        "interior_m": list(INTERIOR),
+        "domain_m": list(domain_for(dx)),
+        "wall_cells": WALL_CELLS,
+        "column_lo_m": list(lo),
+        "column_hi_m": list(hi),
+        "a_m": A,
+        "particles_per_cell": PPC_1D**3,
+        "rho": RHO,
+        "sound_speed_m_s": SOUND_SPEED,
+        "bulk_modulus_Pa": BULK,
+        "g": G,
+        "axes": "x along the tank, y up, z across (Genesis: z up, mapped)",
+    }
 
 
 def write_json(path: str | Path, obj: dict) -> None:

@@ -49,8 +49,11 @@ def main(argv=None) -> dict:
     ap.add_argument("--arch", choices=("cpu", "gpu"), default="cpu")
     ap.add_argument("--threads", type=int, default=0, help="CPU threads (QD_NUM_THREADS); 0 = all cores")
     ap.add_argument("--steps", type=int, default=0, help="substeps to time (rounded up to whole frames); 0 = to T = 3")
-    ap.add_argument("--no-performance-mode", action="store_true",
-                    help="gs.init(performance_mode=False) (default True: static arrays, Genesis's fastest mode)")
+    ap.add_argument(
+        "--no-performance-mode",
+        action="store_true",
+        help="gs.init(performance_mode=False) (default True: static arrays, Genesis's fastest mode)",
+    )
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
 
@@ -65,8 +68,9 @@ def main(argv=None) -> dict:
     import quadrants as qd
 
     perf = not args.no_performance_mode
-    gs.init(backend=gs.cpu if args.arch == "cpu" else gs.gpu, precision="32", logging_level="warning",
-            performance_mode=perf)
+    gs.init(
+        backend=gs.cpu if args.arch == "cpu" else gs.gpu, precision="32", logging_level="warning", performance_mode=perf
+    )
 
     dx, dt, B = args.dx, C.dt_for(args.dx), args.envs
     per_frame = C.SUBSTEPS_PER_FRAME
@@ -76,8 +80,9 @@ def main(argv=None) -> dict:
     t0 = time.perf_counter()
     scene = gs.Scene(
         sim_options=gs.options.SimOptions(dt=dt * per_frame, substeps=per_frame, gravity=(0.0, 0.0, -C.G)),
-        mpm_options=gs.options.MPMOptions(lower_bound=(0.0, 0.0, 0.0), upper_bound=to_genesis(dom),
-                                          grid_density=1.0 / dx, particle_size=dx / C.PPC_1D),
+        mpm_options=gs.options.MPMOptions(
+            lower_bound=(0.0, 0.0, 0.0), upper_bound=to_genesis(dom), grid_density=1.0 / dx, particle_size=dx / C.PPC_1D
+        ),
         show_viewer=False,
     )
     material = gs.materials.MPM.Liquid(rho=C.RHO, lam=C.BULK, sampler="regular")
@@ -119,32 +124,60 @@ def main(argv=None) -> dict:
     pend = positions0()
 
     res = {
-        "solver": "genesis", "dx": dx, "dt": dt, "envs": B, "arch": args.arch, "threads": threads,
-        "particles": n, "particles_expected": n_exp, "substeps": substeps, "substeps_per_frame": per_frame,
-        "seconds": timer.seconds, "compile_seconds": compile_s, "build_seconds": build_s,
+        "solver": "genesis",
+        "dx": dx,
+        "dt": dt,
+        "envs": B,
+        "arch": args.arch,
+        "threads": threads,
+        "particles": n,
+        "particles_expected": n_exp,
+        "substeps": substeps,
+        "substeps_per_frame": per_frame,
+        "seconds": timer.seconds,
+        "compile_seconds": compile_s,
+        "build_seconds": build_s,
         "particle_substeps_per_s": B * n * substeps / timer.seconds,
-        "front": front, "nan": bool(not np.isfinite(pend).all()),
+        "front": front,
+        "nan": bool(not np.isfinite(pend).all()),
         "initial_span_m": [p0.min(0).tolist(), p0.max(0).tolist()],
-        "genesis_version": gs.__version__, "quadrants_version": ".".join(map(str, qd.__version__)),
-        "torch_version": torch.__version__, "performance_mode": perf,
+        "genesis_version": gs.__version__,
+        "quadrants_version": ".".join(map(str, qd.__version__)),
+        "torch_version": torch.__version__,
+        "performance_mode": perf,
         "genesis_settings": {
             "SimOptions": {"dt": dt * per_frame, "substeps": per_frame, "gravity": [0.0, 0.0, -C.G]},
-            "MPMOptions": {"lower_bound": [0.0, 0.0, 0.0], "upper_bound": list(to_genesis(dom)),
-                           "grid_density": 1.0 / dx, "particle_size": dx / C.PPC_1D},
-            "grid_res": [int(v) for v in solver.grid_res], "substep_dt": float(solver.substep_dt),
-            "boundary_lower": solver.boundary.lower.tolist(), "boundary_upper": solver.boundary.upper.tolist(),
-            "Liquid": {"rho": material.rho, "lam": material.lam, "mu": material.mu, "viscous": material.viscous,
-                       "sampler": material.sampler},
+            "MPMOptions": {
+                "lower_bound": [0.0, 0.0, 0.0],
+                "upper_bound": list(to_genesis(dom)),
+                "grid_density": 1.0 / dx,
+                "particle_size": dx / C.PPC_1D,
+            },
+            "grid_res": [int(v) for v in solver.grid_res],
+            "substep_dt": float(solver.substep_dt),
+            "boundary_lower": solver.boundary.lower.tolist(),
+            "boundary_upper": solver.boundary.upper.tolist(),
+            "Liquid": {
+                "rho": material.rho,
+                "lam": material.lam,
+                "mu": material.mu,
+                "viscous": material.viscous,
+                "sampler": material.sampler,
+            },
             "QD_NUM_THREADS": os.environ.get("QD_NUM_THREADS"),
         },
-        "scene": C.scene_record(dx), "machine": C.machine_info(),
-        "loadavg_start": load_start, "loadavg_end": list(os.getloadavg()),
+        "scene": C.scene_record(dx),
+        "machine": C.machine_info(),
+        "loadavg_start": load_start,
+        "loadavg_end": list(os.getloadavg()),
         "model": "Genesis MPM (MLS-MPM, APIC) Liquid: Kirchhoff stress lam J (J - 1) I, mu = 0; free-slip cube "
-                 "boundary 3 dx inside the grid bounds",
+        "boundary 3 dx inside the grid bounds",
     }
     C.write_json(args.out, res)
-    print(f"genesis dx={dx:g} B={B} particles={n} substeps={substeps} {timer.seconds:.2f} s "
-          f"{res['particle_substeps_per_s']:.3g} p-sub/s  Z_p99(T={front['T'][-1]:.2f})={front['Z_p99'][-1]:.2f}")
+    print(
+        f"genesis dx={dx:g} B={B} particles={n} substeps={substeps} {timer.seconds:.2f} s "
+        f"{res['particle_substeps_per_s']:.3g} p-sub/s  Z_p99(T={front['T'][-1]:.2f})={front['Z_p99'][-1]:.2f}"
+    )
     return res
 
 

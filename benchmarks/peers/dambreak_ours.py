@@ -17,8 +17,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import dambreak_common as C  # noqa: E402
 
@@ -35,8 +33,11 @@ def _git_state() -> dict:
 
     import sim
 
-    return {"commit": git("rev-parse", "HEAD"), "sim_dirty_files": (git("status", "--porcelain", "--", "sim") or "").split("\n"),
-            "sim_path": str(Path(sim.__file__).parent)}
+    return {
+        "commit": git("rev-parse", "HEAD"),
+        "sim_dirty_files": (git("status", "--porcelain", "--", "sim") or "").split("\n"),
+        "sim_path": str(Path(sim.__file__).parent),
+    }
 
 
 def main(argv=None) -> dict:
@@ -46,8 +47,11 @@ def main(argv=None) -> dict:
     ap.add_argument("--arch", choices=("cpu", "gpu"), default="cpu")
     ap.add_argument("--threads", type=int, default=0, help="CPU threads (Taichi cpu_max_num_threads); 0 = all")
     ap.add_argument("--steps", type=int, default=0, help="substeps to time (rounded up to whole frames); 0 = to T = 3")
-    ap.add_argument("--nondeterministic", action="store_true",
-                    help="SimConfig.deterministic = False (particle-parallel atomic P2G on the CPU too)")
+    ap.add_argument(
+        "--nondeterministic",
+        action="store_true",
+        help="SimConfig.deterministic = False (particle-parallel atomic P2G on the CPU too)",
+    )
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
 
@@ -64,10 +68,23 @@ def main(argv=None) -> dict:
     dx, dt, B = args.dx, C.dt_for(args.dx), args.envs
     lo, hi = C.column_box(dx)
     n_exp = C.expected_particles(dx)
-    cfg = SimConfig(dim=3, domain=C.domain_for(dx), dx=dx, dt=dt, rho=C.RHO, sound_speed=C.SOUND_SPEED,
-                    gravity=C.G, friction=0.0, ppc=C.PPC_1D**3, n_envs=B, max_particles=n_exp,
-                    wall_cells=C.WALL_CELLS, arch=args.arch, deterministic=not args.nondeterministic,
-                    jitter=0.0)  # a regular lattice, the same positions as Genesis's "regular" sampler
+    cfg = SimConfig(
+        dim=3,
+        domain=C.domain_for(dx),
+        dx=dx,
+        dt=dt,
+        rho=C.RHO,
+        sound_speed=C.SOUND_SPEED,
+        gravity=C.G,
+        friction=0.0,
+        ppc=C.PPC_1D**3,
+        n_envs=B,
+        max_particles=n_exp,
+        wall_cells=C.WALL_CELLS,
+        arch=args.arch,
+        deterministic=not args.nondeterministic,
+        jitter=0.0,
+    )  # a regular lattice, the same positions as Genesis's "regular" sampler
     specs = [EnvSpec(water=[WaterBlock(lo, hi)]) for _ in range(B)]
     t0 = time.perf_counter()
     solver = MPMSolver(cfg)
@@ -97,21 +114,38 @@ def main(argv=None) -> dict:
     import taichi
 
     res = {
-        "solver": "ours", "source": _git_state(), "dx": dx, "dt": dt, "envs": B, "arch": args.arch, "threads": args.threads or os.cpu_count(),
-        "particles": n, "particles_expected": n_exp, "particles_per_env": [int(c) for c in counts],
-        "substeps": substeps, "substeps_per_frame": per_frame, "seconds": timer.seconds,
+        "solver": "ours",
+        "source": _git_state(),
+        "dx": dx,
+        "dt": dt,
+        "envs": B,
+        "arch": args.arch,
+        "threads": args.threads or os.cpu_count(),
+        "particles": n,
+        "particles_expected": n_exp,
+        "particles_per_env": [int(c) for c in counts],
+        "substeps": substeps,
+        "substeps_per_frame": per_frame,
+        "seconds": timer.seconds,
         "compile_seconds": compile_s,
         "particle_substeps_per_s": B * n * substeps / timer.seconds,
-        "front": front, "unstable": bool(st["unstable"].any()), "nan": bool(st["nan"].any()),
-        "taichi_version": ".".join(map(str, taichi.__version__)), "config": cfg_d,
-        "scene": C.scene_record(dx), "machine": C.machine_info(),
-        "loadavg_start": load_start, "loadavg_end": list(os.getloadavg()),
+        "front": front,
+        "unstable": bool(st["unstable"].any()),
+        "nan": bool(st["nan"].any()),
+        "taichi_version": ".".join(map(str, taichi.__version__)),
+        "config": cfg_d,
+        "scene": C.scene_record(dx),
+        "machine": C.machine_info(),
+        "loadavg_start": load_start,
+        "loadavg_end": list(os.getloadavg()),
         "model": "MLS-MPM (APIC), p = K (1 - J), K = rho c^2; tension on, volume correction on (SimConfig defaults); "
-                 "free-slip tank walls 3 cells thick",
+        "free-slip tank walls 3 cells thick",
     }
     C.write_json(args.out, res)
-    print(f"ours  dx={dx:g} B={B} particles={n} substeps={substeps} {timer.seconds:.2f} s "
-          f"{res['particle_substeps_per_s']:.3g} p-sub/s  Z_p99(T={front['T'][-1]:.2f})={front['Z_p99'][-1]:.2f}")
+    print(
+        f"ours  dx={dx:g} B={B} particles={n} substeps={substeps} {timer.seconds:.2f} s "
+        f"{res['particle_substeps_per_s']:.3g} p-sub/s  Z_p99(T={front['T'][-1]:.2f})={front['Z_p99'][-1]:.2f}"
+    )
     return res
 
 

@@ -52,9 +52,14 @@ class AnalyticPouringModel(nn.Module):
     smooth window in the lip's x position. The rest is spilled. The cup returns upright.
     """
 
-    def __init__(self, target_x: float = TARGET_CUP_X, target_half_width: float = TARGET_CUP_HALF_WIDTH,
-                 cup_half_width: float = CUP_HALF_WIDTH, cup_height: float = CUP_HEIGHT,
-                 edge_softness: float = 0.004) -> None:
+    def __init__(
+        self,
+        target_x: float = TARGET_CUP_X,
+        target_half_width: float = TARGET_CUP_HALF_WIDTH,
+        cup_half_width: float = CUP_HALF_WIDTH,
+        cup_height: float = CUP_HEIGHT,
+        edge_softness: float = 0.004,
+    ) -> None:
         super().__init__()
         self.target_x = target_x
         self.target_half_width = target_half_width
@@ -73,8 +78,7 @@ class AnalyticPouringModel(nn.Module):
         theta = a[:, 1].clamp(0.0, math.pi)
         hold = a[:, 2].clamp_min(0.0)
         tan = torch.tan(theta.clamp(max=1.5))
-        capacity = torch.where(theta < 1.5, (1.0 - (self.a / self.h) * tan).clamp(0.0, 1.0),
-                               torch.zeros_like(theta))
+        capacity = torch.where(theta < 1.5, (1.0 - (self.a / self.h) * tan).clamp(0.0, 1.0), torch.zeros_like(theta))
         excess = (vc - capacity).clamp_min(0.0)
         out = excess * (1.0 - torch.exp(-(hold + 0.2) / 0.3))
         direction = torch.where(x >= self.target_x, -1.0, 1.0).to(s.dtype)
@@ -100,13 +104,19 @@ class StandInMLPDynamics(nn.Module):
     the compute cost of a realistically sized learned model and a small, smooth model error.
     """
 
-    def __init__(self, hidden: int = 128, residual_scale: float = 1e-3, seed: int = 0,
-                 dtype: torch.dtype = torch.float32) -> None:
+    def __init__(
+        self, hidden: int = 128, residual_scale: float = 1e-3, seed: int = 0, dtype: torch.dtype = torch.float32
+    ) -> None:
         super().__init__()
         gen = torch.Generator().manual_seed(seed)
         self.analytic = AnalyticPouringModel()
-        self.net = nn.Sequential(nn.Linear(FEATURE_DIM, hidden), nn.Tanh(), nn.Linear(hidden, hidden),
-                                 nn.Tanh(), nn.Linear(hidden, STATE_DIM))
+        self.net = nn.Sequential(
+            nn.Linear(FEATURE_DIM, hidden),
+            nn.Tanh(),
+            nn.Linear(hidden, hidden),
+            nn.Tanh(),
+            nn.Linear(hidden, STATE_DIM),
+        )
         with torch.no_grad():
             for p in self.net.parameters():
                 p.copy_(torch.randn(p.shape, generator=gen) * (1.0 / math.sqrt(p.shape[-1])))
@@ -132,9 +142,17 @@ class StandInGPMDE:
     the posterior is then conditioned on all points.
     """
 
-    def __init__(self, noise: float = 1e-2, lengthscale_factor: float = 0.5, outputscale: float = 1.0,
-                 optimize: bool = True, fit_iters: int = 100, fit_subset: int = 300, seed: int = 0,
-                 dtype: torch.dtype = torch.float64) -> None:
+    def __init__(
+        self,
+        noise: float = 1e-2,
+        lengthscale_factor: float = 0.5,
+        outputscale: float = 1.0,
+        optimize: bool = True,
+        fit_iters: int = 100,
+        fit_subset: int = 300,
+        seed: int = 0,
+        dtype: torch.dtype = torch.float64,
+    ) -> None:
         self.noise0 = noise
         self.lengthscale_factor = lengthscale_factor
         self.outputscale0 = outputscale
@@ -231,8 +249,9 @@ def plant_deviation(X: np.ndarray) -> np.ndarray:
 SYNTHETIC_STARTS = {"x": (0.3, 0.55), "y": (0.05, 0.3)}
 
 
-def synthetic_deviation_dataset(n: int, rng: np.random.Generator, config: PlannerConfig | None = None,
-                                noise: float = 0.005) -> tuple[np.ndarray, np.ndarray]:
+def synthetic_deviation_dataset(
+    n: int, rng: np.random.Generator, config: PlannerConfig | None = None, noise: float = 0.005
+) -> tuple[np.ndarray, np.ndarray]:
     """(X [n, 8], d [n]) from random 6-action rollouts of the analytic model from :data:`SYNTHETIC_STARTS`.
 
     Rollouts use the planner's :class:`ActionSampler`, so the features cover the states the
@@ -310,8 +329,15 @@ class ToyBoxMDE:
     deviation is ``base`` with std ``std``; inside it is ``high`` with the same std.
     """
 
-    def __init__(self, robot: ToyPointRobot, box: tuple[float, float, float, float] = (0.2, 0.3, 0.0, 0.25),
-                 base: float = 0.01, high: float = 1.0, std: float = 0.01, n_checks: int = 16) -> None:
+    def __init__(
+        self,
+        robot: ToyPointRobot,
+        box: tuple[float, float, float, float] = (0.2, 0.3, 0.0, 0.25),
+        base: float = 0.01,
+        high: float = 1.0,
+        std: float = 0.01,
+        n_checks: int = 16,
+    ) -> None:
         self.robot = robot
         self.box = box
         self.base, self.high, self.std = base, high, std

@@ -49,15 +49,23 @@ def analytic_step(s: np.ndarray, a: np.ndarray) -> np.ndarray:
 def synthetic_transitions(n_traj: int, n_steps: int = 4, seed: int = 0) -> Transitions:
     """Multi-step random trajectories (so partly poured states occur) of :func:`analytic_step`."""
     rng = np.random.default_rng(seed)
-    s = np.column_stack([rng.uniform(0.32, 0.5, n_traj), rng.uniform(0.08, 0.3, n_traj),
-                         np.zeros(n_traj), np.ones(n_traj), np.zeros(n_traj)])
+    s = np.column_stack(
+        [
+            rng.uniform(0.32, 0.5, n_traj),
+            rng.uniform(0.08, 0.3, n_traj),
+            np.zeros(n_traj),
+            np.ones(n_traj),
+            np.zeros(n_traj),
+        ]
+    )
     rows: dict[str, list[Any]] = {k: [] for k in ("s", "a", "s_next", "traj", "step")}
     for t in range(n_steps):
         pour = rng.random(n_traj) < 0.5
-        a = np.where(pour[:, None],
-                     np.column_stack([np.full(n_traj, POUR), rng.uniform(0, 2.2, n_traj), rng.uniform(0, 1, n_traj)]),
-                     np.column_stack([np.full(n_traj, MOVE), rng.uniform(0.1, 0.52, n_traj),
-                                      rng.uniform(0.06, 0.36, n_traj)]))
+        a = np.where(
+            pour[:, None],
+            np.column_stack([np.full(n_traj, POUR), rng.uniform(0, 2.2, n_traj), rng.uniform(0, 1, n_traj)]),
+            np.column_stack([np.full(n_traj, MOVE), rng.uniform(0.1, 0.52, n_traj), rng.uniform(0.06, 0.36, n_traj)]),
+        )
         nxt = analytic_step(s, a)
         for k, v in (("s", s), ("a", a), ("s_next", nxt), ("traj", np.arange(n_traj)), ("step", np.full(n_traj, t))):
             rows[k].append(v)
@@ -66,8 +74,9 @@ def synthetic_transitions(n_traj: int, n_steps: int = 4, seed: int = 0) -> Trans
     return Transitions.from_arrays(**arr, meta={"world": "source", "generator": "synthetic", "seed": seed})
 
 
-def synthetic_generator(cfg: Any, shard_dir: Path | None = None, progress: bool = False,
-                        world_cfg: Any = None) -> Transitions:
+def synthetic_generator(
+    cfg: Any, shard_dir: Path | None = None, progress: bool = False, world_cfg: Any = None
+) -> Transitions:
     """Drop-in for :func:`dynamics.data.generate_source_dataset`: size and seed from ``cfg.data``."""
     d = cfg.data
     return synthetic_transitions(d.n_batches * d.batch_size, n_steps=d.max_actions, seed=d.seed)
