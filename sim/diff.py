@@ -62,6 +62,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
 from .diff_schedule import PARAMS, chain_to_params, cup_trajectory, horizon_ticks, production_ticks, substeps_per_tick
 from .engine.config import ConfigError
@@ -242,14 +243,7 @@ class DifferentiablePour:
 
     def _sample_local(self, fill: float) -> list[np.ndarray]:
         """Water of each environment in the cup frame (upright cup at the origin), production sampling."""
-        cc = self.cfg.controlled_cup
-        out = []
-        for b in range(self.B):
-            spec = EnvSpec(bodies=[Body("cup", pose=(0.0, 0.0, 0.0), shapes=cc.shapes())],
-                           water=[WaterBlock((-cc.inner_width / 2, 0.0), (cc.inner_width / 2, cc.fill_height * fill),
-                                             body="cup")])
-            out.append(sample_water(spec, self.dx, self.ppc, np.random.default_rng([self.seed, b]), self.jitter).astype(float))
-        return out
+        return [self._sample_local_one(b, fill) for b in range(self.B)]
 
     def check_params(self, params: np.ndarray, v_ctrl: np.ndarray | None = None,
                      wrt: Sequence[str] = ()) -> tuple[np.ndarray, np.ndarray]:
@@ -314,9 +308,11 @@ class DifferentiablePour:
         return x0, n
 
     def _sample_local_one(self, b: int, fill: float) -> np.ndarray:
+        """Environment b's water, ``fill`` of the full cup, in the cup frame (seed [sim.seed, b], as production)."""
         cc = self.cfg.controlled_cup
         spec = EnvSpec(bodies=[Body("cup", shapes=cc.shapes())],
-                       water=[WaterBlock((-cc.inner_width / 2, 0.0), (cc.inner_width / 2, cc.fill_height * fill), body="cup")])
+                       water=[WaterBlock((-cc.inner_width / 2, 0.0), (cc.inner_width / 2, cc.fill_height * fill),
+                                         body="cup")])
         return sample_water(spec, self.dx, self.ppc, np.random.default_rng([self.seed, b]), self.jitter).astype(float)
 
     def _hard(self, x: np.ndarray, n: np.ndarray, end_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -403,6 +399,25 @@ def _skill_ranges(cfg: WorldConfig) -> tuple[np.ndarray, np.ndarray]:
     return np.array([a for a, _ in r], float), np.array([b for _, b in r], float)
 
 
+def _refine_arguments(params: np.ndarray, goals: np.ndarray, steps: int, lr: float,
+                      spill_weight: float) -> tuple[np.ndarray, np.ndarray]:
+    """``refine_pours``' arguments checked before compute: (params (B, 4), goals (B,))."""
+    p0 = np.asarray(params, float)
+    B = p0.shape[0] if p0.ndim == 2 else -1
+    g = np.asarray(goals, float).reshape(-1)
+    if p0.ndim != 2 or p0.shape[1] != 4:
+        raise ConfigError(f"params: expected shape (B, 4) = (B, {list(PARAMS)}), got {p0.shape}")
+    if g.shape != (B,) or not np.all((g >= 0) & (g <= 1)):
+        raise ConfigError(f"goals: expected {B} fractions in [0, 1], got {goals}")
+    if not (isinstance(steps, (int, np.integer)) and steps >= 1):
+        raise ConfigError(f"steps = {steps!r}: allowed an integer >= 1")
+    if not (lr > 0 and math.isfinite(lr)):
+        raise ConfigError(f"lr = {lr!r}: allowed > 0 (normalised units: fraction of each parameter's range)")
+    if not (spill_weight >= 0 and math.isfinite(spill_weight)):
+        raise ConfigError(f"spill_weight = {spill_weight!r}: allowed >= 0")
+    return p0, g
+
+
 def refine_pours(world_cfg: WorldConfig, params: np.ndarray, goals: np.ndarray, v_ctrl: np.ndarray | None = None,
                  steps: int = 10, lr: float = 0.05, wrt: Sequence[str] = ("theta", "hold"), spill_weight: float = 1.0,
                  horizon: float | None = None, progress: bool = True, pour_sim: DifferentiablePour | None = None,
@@ -420,19 +435,8 @@ def refine_pours(world_cfg: WorldConfig, params: np.ndarray, goals: np.ndarray, 
     hold to 10 ms ticks.
     """
     t_start = time.perf_counter()
-    p0 = np.asarray(params, float)
-    B = p0.shape[0] if p0.ndim == 2 else -1
-    g = np.asarray(goals, float).reshape(-1)
-    if p0.ndim != 2 or p0.shape[1] != 4:
-        raise ConfigError(f"params: expected shape (B, 4) = (B, {list(PARAMS)}), got {p0.shape}")
-    if g.shape != (B,) or not np.all((g >= 0) & (g <= 1)):
-        raise ConfigError(f"goals: expected {B} fractions in [0, 1], got {goals}")
-    if not (isinstance(steps, (int, np.integer)) and steps >= 1):
-        raise ConfigError(f"steps = {steps!r}: allowed an integer >= 1")
-    if not (lr > 0 and math.isfinite(lr)):
-        raise ConfigError(f"lr = {lr!r}: allowed > 0 (normalised units: fraction of each parameter's range)")
-    if not (spill_weight >= 0 and math.isfinite(spill_weight)):
-        raise ConfigError(f"spill_weight = {spill_weight!r}: allowed >= 0")
+    p0, g = _refine_arguments(params, goals, steps, lr, spill_weight)
+    B = len(p0)
     sim = pour_sim if pour_sim is not None else DifferentiablePour(world_cfg, B, **sim_kwargs)
     if sim.B != B:
         raise ConfigError(f"pour_sim has n_envs = {sim.B}, params has {B} rows")
@@ -450,8 +454,6 @@ def refine_pours(world_cfg: WorldConfig, params: np.ndarray, goals: np.ndarray, 
     history: list[dict] = []
     it = range(steps + 1)  # the last evaluation scores the final step (no update after it)
     if progress:
-        from tqdm.auto import tqdm
-
         it = tqdm(it, desc=f"refine {B} pours", unit="step")
     for k in it:
         p = lo + u.numpy() * span
@@ -491,7 +493,8 @@ def refine_pours(world_cfg: WorldConfig, params: np.ndarray, goals: np.ndarray, 
 
 # ---------------------------------------------------------------------------------- CLI
 def main(argv: Sequence[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m sim.diff", description="Outcome and gradient of one source-world pour.")
+    ap = argparse.ArgumentParser(prog="python -m sim.diff",
+                                 description="Outcome and gradient of one source-world pour.")
     ap.add_argument("--x", type=float, default=0.31)
     ap.add_argument("--y", type=float, default=0.14)
     ap.add_argument("--theta", type=float, default=1.5)

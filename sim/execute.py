@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from task import goal_reached, spill
 
@@ -32,7 +33,7 @@ CATEGORIES = ("successful_pour", "unsuccessful_pour", "stuck_in_plant", "other")
 SCHEDULE_THREADS = 16  # most threads (or processes) that compute a batch's cup schedules
 #: batches at least this large compute their cup schedules in worker processes when more than 2 CPUs are
 #: available: the schedule's numpy calls are too small to run long without the GIL, so threads bought about
-#: nothing at B = 2048 on a 16-core GPU box (BENCHMARKS.md, "Session 20: an H200")
+#: nothing at B = 2048 on a 16-core GPU box (BENCHMARKS.md, executing trajectories)
 SCHEDULE_PROCESS_MIN_BATCH = 256
 SCHEDULE_PROCESS_MIN_CPUS = 3
 POUR_EVIDENCE = 0.02  # fraction of water that must leave the controlled cup to call it a pour
@@ -156,7 +157,8 @@ class PouringExecutor:
                 return list(pool.map(one, jobs))
         return [one(job) for job in jobs]
 
-    def start_obstacles(self, world: str, starts: np.ndarray, plant_jitter: np.ndarray | None = None) -> list[str | None]:
+    def start_obstacles(self, world: str, starts: np.ndarray,
+                        plant_jitter: np.ndarray | None = None) -> list[str | None]:
         """Per start pose (x, y[, theta]): the obstacle the cup would overlap there (what :meth:`run` refuses),
         or None where it is clear. For callers that build start grids, such as benchmarks."""
         check_world(world)
@@ -192,7 +194,28 @@ class PouringExecutor:
         """
         check_world(world)
         t_all = time.perf_counter()
-        cfg = self.cfg
+        starts, goals, acts, specs = self._inputs(world, starts, actions, plant_jitter, goals)
+        # --- kinematic schedules with contact (numpy, before any simulation; a GPU batch of thousands
+        #     would otherwise wait on one core)
+        t0 = time.perf_counter()
+        scheds = self._schedules(specs, starts, acts)
+        timing = {"schedule": time.perf_counter() - t0}
+        solver = self.solver(len(acts))
+        solver.reset(specs, slots)
+        rollout = _Rollout(self.cfg, solver, scheds, frame_every)
+        rollout.play(f"simulate {len(acts)} x {world}", progress, freeze_done)
+        unstable = solver.report_unstable()
+        results = [trajectory_result(self.cfg, rollout.obs[b], acts[b], scheds[b], None if goals is None else goals[b],
+                                     bool(unstable[b]), rollout.frames[b] if rollout.frames is not None else None)
+                   for b in range(len(acts))]
+        timing.update(rollout.timing(freeze_done), total=time.perf_counter() - t_all,
+                      sim_seconds=rollout.K * rollout.h, substeps=rollout.K * rollout.n_sub)
+        self.last_timing = timing
+        return results
+
+    def _inputs(self, world: str, starts: np.ndarray, actions: Sequence[Sequence[Sequence[float]]],
+                plant_jitter: np.ndarray | None, goals: Sequence[float] | None) -> tuple:
+        """``run``'s arguments checked: (starts (B, 3), goals (B,) or None, actions as executed, scenes)."""
         starts = np.asarray(starts, float)
         B = len(actions)
         if starts.ndim != 2 or len(starts) != B or starts.shape[1] not in (2, 3):
@@ -204,95 +227,96 @@ class PouringExecutor:
             if goals.shape != (B,) or (goals < 0).any() or (goals > 1).any():
                 raise ValueError(f"goals: expected {B} fractions in [0, 1], got {goals}")
         jit = np.zeros((B, 3)) if plant_jitter is None else np.asarray(plant_jitter, float).reshape(B, 3)
-        acts = validate_actions(cfg, actions)
-        specs = [cfg.scene(world, starts[b], jit[b]) for b in range(B)]
+        acts = validate_actions(self.cfg, actions)
+        specs = [self.cfg.scene(world, starts[b], jit[b]) for b in range(B)]
+        return starts, goals, acts, specs
 
-        # --- kinematic schedules with contact (numpy, before any simulation; a GPU batch of thousands
-        #     would otherwise wait on one core)
-        t0 = time.perf_counter()
-        scheds = self._schedules(specs, starts, acts)
-        K = max(len(s.poses) for s in scheds) - 1
-        poses = np.stack([np.concatenate([s.poses, np.repeat(s.poses[-1:], K + 1 - len(s.poses), 0)])
+
+class _Rollout:
+    """One batch in the solver: every environment's cup schedule played tick by tick, its state observed when each
+    of its actions ends (tick 0 too), environments frozen once their trajectory has ended."""
+
+    def __init__(self, cfg: WorldConfig, solver: MPMSolver, scheds: list[Schedule], frame_every: float | None):
+        self.solver = solver
+        B = len(scheds)
+        self.K = max(len(s.poses) for s in scheds) - 1
+        poses = np.stack([np.concatenate([s.poses, np.repeat(s.poses[-1:], self.K + 1 - len(s.poses), 0)])
                           for s in scheds])  # (B, K + 1, 3)
-        timing = {"schedule": time.perf_counter() - t0}
-
-        solver = self.solver(B)
-        solver.reset(specs, slots)
         solver.load_schedule(CTRL, poses)
-        bodies, lo, hi = cfg.volume_regions()
-        n_part = solver.particle_counts().astype(float)
-        h = cfg.control_dt
-        n_sub = int(round(h / solver.cfg.dt))
-        end_ticks = [set(s.action_end) for s in scheds]
-        last_tick = np.array([len(s.poses) - 1 for s in scheds])
-        running = np.ones(B, bool)
-        obs: list[list[np.ndarray]] = [[] for _ in range(B)]
-        frames: list[list[dict]] | None = [[] for _ in range(B)] if frame_every else None
-        frame_ticks = max(1, int(round(frame_every / h))) if frame_every else 0
-        t_sim = t_query = t_ctrl = t_frames = 0.0
+        self.regions = cfg.volume_regions()
+        self.n_part = solver.particle_counts().astype(float)
+        self.h = cfg.control_dt
+        self.n_sub = int(round(self.h / solver.cfg.dt))
+        self.end_ticks = [set(s.action_end) for s in scheds]
+        self.last_tick = np.array([len(s.poses) - 1 for s in scheds])
+        self.obs: list[list[np.ndarray]] = [[] for _ in range(B)]
+        self.frames: list[list[dict]] | None = [[] for _ in range(B)] if frame_every else None
+        self.frame_ticks = max(1, int(round(frame_every / self.h))) if frame_every else 0
+        self.seconds = {"simulate": 0.0, "control": 0.0, "state_queries": 0.0, "frames": 0.0}
 
-        def observe(k: int) -> None:
-            nonlocal t_query
-            tq = time.perf_counter()
-            counts = solver.count_in_regions(bodies, lo, hi) / n_part[:, None]
-            cup = solver.body_poses(CTRL)
-            for b in range(B):
-                if k == 0 or k in end_ticks[b]:
-                    obs[b].append(np.array([cup[b, 0], cup[b, 1], cup[b, 2], counts[b, 0], counts[b, 1]]))
-            t_query += time.perf_counter() - tq
+    def observe(self, k: int) -> None:
+        """Record (cup pose, fractions of the water in the two cups) of the environments whose action ends at tick k."""
+        tq = time.perf_counter()
+        bodies, lo, hi = self.regions
+        counts = self.solver.count_in_regions(bodies, lo, hi) / self.n_part[:, None]
+        cup = self.solver.body_poses(CTRL)
+        for b, obs in enumerate(self.obs):
+            if k == 0 or k in self.end_ticks[b]:
+                obs.append(np.array([cup[b, 0], cup[b, 1], cup[b, 2], counts[b, 0], counts[b, 1]]))
+        self.seconds["state_queries"] += time.perf_counter() - tq
 
+    def play(self, label: str, progress: bool, freeze_done: bool) -> None:
+        """Run the K ticks (``PouringExecutor.run``'s ``freeze_done``), the cup at rest after the last."""
+        solver, B = self.solver, len(self.obs)
         gpu = solver.arch != "cpu"
-        observe(0)
-        any_end = set().union(*end_ticks)
-        iterator = range(K)
-        if progress:
-            from tqdm.auto import tqdm
-
-            iterator = tqdm(iterator, desc=f"simulate {B} x {world}", unit="tick", leave=False)
-        for k in iterator:
+        running = np.ones(B, bool)
+        self.observe(0)
+        any_end = set().union(*self.end_ticks)
+        ticks = tqdm(range(self.K), desc=label, unit="tick", leave=False) if progress else range(self.K)
+        for k in ticks:
             tc = time.perf_counter()
-            solver.track_tick(k + 1, h)
+            solver.track_tick(k + 1, self.h)
             ts = time.perf_counter()
-            solver.step(n_sub)
+            solver.step(self.n_sub)
             if gpu:
                 solver.sync()  # kernels run asynchronously: wait, so the time lands in "simulate"
-            te = time.perf_counter()
-            t_ctrl += ts - tc
-            t_sim += te - ts
+            self.seconds["control"] += ts - tc
+            self.seconds["simulate"] += time.perf_counter() - ts
             if k + 1 in any_end:
-                observe(k + 1)
-                if freeze_done and (last_tick == k + 1).any():
-                    running &= last_tick > k + 1
+                self.observe(k + 1)
+                if freeze_done and (self.last_tick == k + 1).any():
+                    running &= self.last_tick > k + 1
                     solver.set_active(running)
-            if frames is not None and (k + 1) % frame_ticks == 0:
+            if self.frames is not None and (k + 1) % self.frame_ticks == 0:
                 tf = time.perf_counter()
                 for b in range(B):
-                    frames[b].append(snapshot(solver, b))
-                t_frames += time.perf_counter() - tf
+                    self.frames[b].append(snapshot(solver, b))
+                self.seconds["frames"] += time.perf_counter() - tf
         solver.set_body_velocity(CTRL, np.zeros((B, 2)), np.zeros(B))
-        unstable = solver.report_unstable()
 
-        results = []
-        max_spill = cfg.problems["max_spill"]
-        for b in range(B):
-            states = np.stack(obs[b])
-            n_exec = scheds[b].executed
-            steps = [Step(states[t], acts[b][t], states[t + 1], stuck=t in scheds[b].blocked)
-                     for t in range(n_exec)]
-            if cfg.plant_on_contact == "stuck" and scheds[b].stuck_on == "plant":  # the rest: tried, no effect
-                steps += [Step(states[-1], a, states[-1], stuck=True) for a in acts[b][n_exec:]]
-                states = np.concatenate([states, np.repeat(states[-1:], len(acts[b]) - n_exec, 0)])
-                n_exec = len(acts[b])
-            g = None if goals is None else float(goals[b])
-            reached = None if g is None else bool(goal_reached(states[-1], g, cfg.problems["tolerance"], max_spill)
-                                                 and not unstable[b])
-            results.append(TrajectoryResult(
-                states=states, actions=acts[b][:n_exec], steps=steps, requested_actions=len(acts[b]), goal=g,
-                goal_reached=reached, final_spill=float(spill(states[-1])), stuck=scheds[b].stuck,
-                stuck_on=scheds[b].stuck_on, category=categorise(states, scheds[b].stuck_on, bool(unstable[b]), max_spill),
-                unstable=bool(unstable[b]), frames=frames[b] if frames is not None else None))
-        timing.update(env_ticks_run=int(np.minimum(last_tick, K).sum()) if freeze_done else B * K, env_ticks=B * K,
-                      simulate=t_sim, control=t_ctrl, state_queries=t_query, frames=t_frames,
-                      total=time.perf_counter() - t_all, sim_seconds=K * h, substeps=K * n_sub)
-        self.last_timing = timing
-        return results
+    def timing(self, freeze_done: bool) -> dict:
+        B, K = len(self.obs), self.K
+        return {"env_ticks_run": int(np.minimum(self.last_tick, K).sum()) if freeze_done else B * K,
+                "env_ticks": B * K, **self.seconds}
+
+
+def trajectory_result(cfg: WorldConfig, observed: list[np.ndarray], acts: np.ndarray, sched: Schedule,
+                      goal: float | None, unstable: bool, frames: list[dict] | None) -> TrajectoryResult:
+    """One environment's trajectory from its observed states (one per action end, tick 0 first): its steps (under
+    ``world.plant.on_contact: stuck``, the actions left after the plant caught the cup as steps without effect),
+    goal, spill and category."""
+    states = np.stack(observed)
+    n_exec = sched.executed
+    steps = [Step(states[t], acts[t], states[t + 1], stuck=t in sched.blocked) for t in range(n_exec)]
+    if cfg.plant_on_contact == "stuck" and sched.stuck_on == "plant":  # the rest: tried, no effect
+        steps += [Step(states[-1], a, states[-1], stuck=True) for a in acts[n_exec:]]
+        states = np.concatenate([states, np.repeat(states[-1:], len(acts) - n_exec, 0)])
+        n_exec = len(acts)
+    max_spill = cfg.problems["max_spill"]
+    g = None if goal is None else float(goal)
+    reached = None if g is None else bool(goal_reached(states[-1], g, cfg.problems["tolerance"], max_spill)
+                                         and not unstable)
+    return TrajectoryResult(
+        states=states, actions=acts[:n_exec], steps=steps, requested_actions=len(acts), goal=g, goal_reached=reached,
+        final_spill=float(spill(states[-1])), stuck=sched.stuck, stuck_on=sched.stuck_on,
+        category=categorise(states, sched.stuck_on, unstable, max_spill), unstable=unstable, frames=frames)

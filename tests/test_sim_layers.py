@@ -4,7 +4,8 @@ The engine (both solvers, the stencil and colliders they share, the physics, the
 profiles, rendering, the solver config and Taichi's set-up) may import itself, ``safeio`` and third-party
 packages; the pouring task (worlds, skills, execution, problems, contact prediction, differentiable pours:
 the modules of ``sim/`` beside ``engine/``) builds on it, as the project's ``task`` package and its configs do.
-Read with ``ast``, so every import counts, those inside functions too.
+Read with ``ast``, so every import counts, those inside functions too. Also here: the size of sim/'s functions
+and where its modules import.
 """
 
 import ast
@@ -18,6 +19,12 @@ ENGINE = SIM / "engine"
 #: the project's top-level packages other than sim, and the one of them the engine may use
 OURS = {"mde", "planner", "dynamics", "active", "safeio", "task", "configs", "benchmarks", "tests"}
 ENGINE_MAY_IMPORT = {"safeio"}
+#: longest function (lines, decorators and docstring included) in sim/
+MAX_FUNCTION_LINES = 80
+#: imports inside functions: (file, imported module) -> why it is not at the top of its module
+LAZY_IMPORTS = {
+    ("sim/engine/render.py", "imageio.v2"): "imageio is heavy and only writes GIFs",
+}
 
 
 def _module(path: Path) -> str:
@@ -74,3 +81,27 @@ def test_the_check_sees_a_task_import(source):
     assert engine_violations(source, "sim.engine.probe")
     assert not engine_violations("from .colliders import Colliders\nimport sim.engine.mpm\nimport numpy\n"
                                  "import safeio\n", "sim.engine.probe")
+
+
+def test_no_function_in_sim_is_longer_than_80_lines():
+    long = []
+    for path in sorted(SIM.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                start = min([node.lineno] + [d.lineno for d in node.decorator_list])
+                if node.end_lineno - start + 1 > MAX_FUNCTION_LINES:
+                    long.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.name} ({node.end_lineno - start + 1})")
+    assert not long, f"split these by phase: {long}"
+
+
+def test_sim_imports_at_the_top_of_its_modules():
+    lazy = set()
+    for path in sorted(SIM.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                for sub in ast.walk(node):
+                    if isinstance(sub, ast.Import):
+                        lazy |= {(str(path.relative_to(ROOT)), a.name) for a in sub.names}
+                    elif isinstance(sub, ast.ImportFrom):
+                        lazy.add((str(path.relative_to(ROOT)), sub.module))
+    assert lazy <= set(LAZY_IMPORTS), f"imports inside functions, no reason given: {lazy - set(LAZY_IMPORTS)}"

@@ -2,10 +2,17 @@
 
 from __future__ import annotations
 
+import platform
 
+import numpy as np
 import taichi as ti
 
 from .config import ARCHES, ConfigError
+
+try:
+    from numpy._core._multiarray_umath import __cpu_features__ as _CPU_FEATURES
+except ImportError:  # numpy < 2
+    from numpy.core._multiarray_umath import __cpu_features__ as _CPU_FEATURES
 
 _current: str | None = None
 
@@ -29,7 +36,7 @@ def init_taichi(arch: str = "cpu", *, debug: bool = False, kernel_profiler: bool
     kwargs = dict(default_fp=ti.f32, debug=debug, log_level=ti.WARN, kernel_profiler=kernel_profiler)
     if arch == "cpu":
         # no fast math: IEEE arithmetic without contraction into FMA or reassociation, so that the
-        # rounding does not depend on the host's vector width (it costs 7-20 % of speed: BENCHMARKS.md, session 19)
+        # rounding does not depend on the host's vector width (it runs 7-20 % slower than with fast math)
         ti.init(arch=ti.cpu, fast_math=False, **kwargs)
     else:
         ti.init(arch=ti.gpu, **kwargs)
@@ -53,20 +60,12 @@ def cpu_fingerprint() -> str:
     """The machine, its vector instruction sets and the numpy and Taichi versions: what decides the CPU
     solver's floating-point results.
 
-    Why: data made before session 19 used Taichi's fast math, under which the lane width (AVX2 or
-    AVX-512) and FMA change the rounding, and numpy's vectorised sin / cos / power, which differ between
-    instruction sets and releases. The CPU solver now runs without fast math and the host-side schedule
-    uses libm's scalar functions, which should make results the same on every x86-64 CPU with the same
-    libraries; that is not yet verified on a second CPU type, so bit-for-bit comparisons still require
-    the same fingerprint (the shipped dataset records the one that made it)."""
-    import platform
-
-    import numpy as np
-
-    try:
-        from numpy._core._multiarray_umath import __cpu_features__ as feats
-    except ImportError:  # numpy < 2
-        from numpy.core._multiarray_umath import __cpu_features__ as feats
+    Why: under Taichi's fast math the lane width (AVX2 or AVX-512) and FMA change the rounding, and numpy's
+    vectorised sin / cos / power differ between instruction sets and releases. The CPU solver runs without
+    fast math and the host-side schedule uses libm's scalar functions, which should make results the same on
+    every x86-64 CPU with the same libraries; bit-for-bit comparisons still require the same fingerprint (the
+    shipped dataset records the one that made it; tests/test_dynamics_shipped.py compares states made on
+    another kind of CPU within a tolerance)."""
     keep = ("AVX", "AVX2", "FMA3", "AVX512F", "AVX512_SKX", "ASIMD", "SVE")
-    return " ".join([platform.machine()] + [k for k in keep if feats.get(k)]
+    return " ".join([platform.machine()] + [k for k in keep if _CPU_FEATURES.get(k)]
                     + [f"numpy {np.__version__}", "taichi " + ".".join(map(str, ti.__version__))])
