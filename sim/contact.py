@@ -15,12 +15,14 @@ schedule is checked in ``tests/test_sim_contact.py``.
 
 The obstacles' distance is read from a raster (:class:`DistanceRaster`, bilinear, ``resolution`` metres)
 rather than evaluated shape by shape: a planner calls this with ~17 rows at a time, where the cost is the
-number of numpy calls, not their size (session 20: the contact check was 42 % of a planner's time).
+number of numpy calls, not their size (evaluated shape by shape, the contact check took 42 % of a planner's
+time: BENCHMARKS.md, planner throughput).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
 from task import on_lattice
 
 from .skills import CONTACT_MARGIN, MOVE, Obstacles, cup_boundary, tilt_about_lip, to_world
@@ -160,7 +162,8 @@ class ContactPredictor:
             d, idx = d.reshape(near.size, -1), idx.reshape(near.size, -1)
             if len(self._obstacle_pts):
                 d = np.concatenate([d, self._cup_sdf(flat[near], self._obstacle_pts)], 1)
-                idx = np.concatenate([idx, np.broadcast_to(self._obstacle_owner, (near.size, len(self._obstacle_owner)))], 1)
+                owners = np.broadcast_to(self._obstacle_owner, (near.size, len(self._obstacle_owner)))
+                idx = np.concatenate([idx, owners], 1)
             j = d.argmin(1)
             rows = np.arange(near.size)
             d_out[near], i_out[near] = d[rows, j], idx[rows, j]

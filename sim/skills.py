@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+
 from task import on_lattice
 
 from .engine.motion import cos_sin, min_jerk, min_jerk_duration
@@ -150,7 +151,8 @@ class Obstacles:
         centre = to_world(c0[None], poses, portable=True)[:, 0]  # (n, 2)
         pts = to_world(boundary, poses, portable=True)  # (n, m, 2)
         best, idx = np.full((n, m), np.inf), np.full((n, m), -1)
-        rows = np.flatnonzero(np.minimum((centre - self.interior_lo).min(1), (self.interior_hi - centre).min(1)) < r + cutoff)
+        wall = np.minimum((centre - self.interior_lo).min(1), (self.interior_hi - centre).min(1))
+        rows = np.flatnonzero(wall < r + cutoff)
         if rows.size:
             p = pts[rows]
             best[rows] = np.minimum((p - self.interior_lo).min(2), (self.interior_hi - p).min(2))

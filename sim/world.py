@@ -144,7 +144,8 @@ class WorldConfig:
         """The environment for one problem: controlled cup (full) at ``cup_pose`` plus obstacles."""
         cc = self.controlled_cup
         cup = Body("cup", pose=tuple(float(v) for v in cup_pose), shapes=cc.shapes())
-        water = [WaterBlock((-cc.inner_width / 2, 0.0), (cc.inner_width / 2, cc.fill_height), body="cup")] if full else []
+        water = [WaterBlock((-cc.inner_width / 2, 0.0), (cc.inner_width / 2, cc.fill_height), body="cup")]
+        water = water if full else []
         return EnvSpec(bodies=[cup] + self.obstacle_bodies(world, plant_jitter), water=water)
 
     def volume_regions(self) -> tuple[list[int], np.ndarray, np.ndarray]:

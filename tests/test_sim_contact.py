@@ -17,7 +17,7 @@ from tests.doubles.standins import AnalyticPouringModel
 
 @pytest.fixture(scope="module")
 def world():
-    """The default world with continuous cup positions (its default lattice, session 13, is tested apart)."""
+    """The default world with continuous cup positions (its default lattice is tested apart)."""
     import dataclasses
 
     w = WorldConfig.load()
@@ -171,7 +171,7 @@ def test_planner_never_plans_a_move_predicted_stuck(world):
 def test_planner_prunes_a_move_stopped_just_short_of_its_target(world):
     """The cup's outer wall reaches the tank wall at the very end of this move: it stops about 5 mm
     short, inside the pose rule's tolerance (``stuck_move``), so only the contact flag tells the
-    planner that the simulator would end the trajectory there (BENCHMARKS.md, session 12)."""
+    planner that the simulator would end the trajectory there."""
     from planner.rrt import _Evaluator, _Search
 
     dyn = ContactAwareDynamics(_Commanded(), world)

@@ -96,9 +96,9 @@ def _check_gradients(dp, required):
 def test_gradients_match_central_differences(dp):
     """The default world's water (ghost mass in the walls, sim.boundary_density): AD = FD in y, theta
     and hold. One pose coordinate has no case that is smooth at the FD scale here: the ghost mass
-    switches on as a grid node crosses into a cup wall, a jump in the density estimate. With 5 cm of
-    water that was y (x was checked); with session 13's 7.5 cm it is x (y is checked). Both take the
-    same code path (the cup pose); the slow test below checks all four on the water without ghost mass."""
+    switches on as a grid node crosses into a cup wall, a jump in the density estimate. With the default
+    7.5 cm of water it is x (y is checked; with 5 cm it is y). Both take the same code path (the cup
+    pose); the slow test below checks all four on the water without ghost mass."""
     _check_gradients(dp, {"y", "theta", "hold"})
 
 
@@ -246,7 +246,7 @@ def _both(cfg, pours):
 @pytest.mark.slow
 @pytest.mark.parametrize("pour_params", [
     [0.31, 0.14, 1.8, 0.5],
-    [0.3137, 0.1433, 1.8, 0.5],  # off-grid: disagreed (0.921 vs 0.993-1.000, strict xfail) until the session-5 water model
+    [0.3137, 0.1433, 1.8, 0.5],  # off-grid: an earlier water model made the solvers disagree here (0.921 vs 0.993)
 ])
 def test_forward_agrees_with_production_on_emptying_pours(cfg, pour_params):
     """Hard in-target fraction after a pour that empties the cup; tolerance 0.05 (7 of 140 particles).
@@ -258,10 +258,10 @@ def test_forward_agrees_with_production_on_emptying_pours(cfg, pour_params):
 
 @pytest.mark.slow
 def test_forward_agrees_with_production_on_partial_pours(cfg):
-    """Partial pours, the steep part of the outcome; tolerance 0.05 (7 of 140 particles). A strict xfail
-    from session 5 to 7: production's box normals were a central difference (sim.box_normals=central),
-    and its partial pours 0.05 fuller than the differentiable solver's, below all 16 production slots
-    (BENCHMARKS.md, session 7). Both now take the analytic normal."""
+    """Partial pours, the steep part of the outcome; tolerance 0.05 (7 of 140 particles). Both solvers take the
+    analytic box normal: with production's central difference (sim.box_normals=central) its partial pours are
+    0.05 fuller than the differentiable solver's, below all 16 production slots (BENCHMARKS.md, differentiable
+    pours)."""
     pours = np.array([[0.3137, 0.1433, 1.5, 0.5], [0.3137, 0.1433, 1.3, 1.0], [0.3037, 0.1633, 1.4, 0.3],
                       [0.3437, 0.1633, 1.6, 0.2]])
     prod, diff = _both(cfg, pours)

@@ -203,7 +203,8 @@ def test_box_normal_rule_acts_and_is_validated():
         kept[rule] = (_kept(solver), np.array(solver.positions(0)))
         solver.close()
     assert not np.array_equal(kept["analytic"][1], kept["central"][1])
-    with pytest.raises(ConfigError, match=r"sim.box_normals = 'sobel' is invalid: allowed one of \('analytic', 'central'\)"):
+    with pytest.raises(ConfigError,
+                       match=r"sim.box_normals = 'sobel' is invalid: allowed one of \('analytic', 'central'\)"):
         SimConfig(box_normals="sobel")
 
 
@@ -321,7 +322,8 @@ def test_split_substep_equals_the_whole_substep_bitwise(monkeypatch):
     for threshold in (10**9, 0):
         monkeypatch.setattr(mpm, "_SPLIT_ENV_PARTICLES", threshold)
         # on one thread (a pytest-xdist worker) the split path runs its two slabs one after the other
-        monkeypatch.setattr(MPMSolver, "_split", lambda self: threshold == 0 and self._n_running < max(self.threads, 2))
+        monkeypatch.setattr(MPMSolver, "_split",
+                            lambda self, t=threshold: t == 0 and self._n_running < max(self.threads, 2))
         solver = MPMSolver(SimConfig(n_envs=3, max_particles=512))
         solver.reset([_cup_env(x=0.2 + 0.04 * b, theta=0.15 * b) for b in range(3)])
         solver.set_body_velocity(0, np.tile([0.15, 0.08], (3, 1)), np.linspace(-0.6, 0.9, 3))
@@ -408,7 +410,7 @@ def test_three_dimensional_split_substep_equals_the_whole_substep_bitwise(monkey
     for threshold in (10**9, 0):
         monkeypatch.setattr(mpm, "_SPLIT_ENV_PARTICLES", threshold)
         cfg = SimConfig(dim=3, domain=(0.2, 0.2, 0.2), dx=0.02, dt=5e-4, ppc=8, max_particles=2048)
-        monkeypatch.setattr(MPMSolver, "_split", lambda self: threshold == 0)
+        monkeypatch.setattr(MPMSolver, "_split", lambda self, t=threshold: t == 0)
         solver = MPMSolver(cfg)
         solver.reset([EnvSpec(water=[WaterBlock((0.06, 0.06, 0.06), (0.1, 0.14, 0.12))])])
         solver.advance(0.08)
@@ -420,7 +422,7 @@ def test_three_dimensional_split_substep_equals_the_whole_substep_bitwise(monkey
 
 @pytest.mark.parametrize("kind,size", [("box", (0.03, 0.004)), ("capsule", (0.02, 0.005)), ("ellipse", (0.065, 0.007))])
 def test_shape_bounds_hold_the_shape_tightly(kind, size):
-    """The solver skips a shape when a point lies outside its body-frame bounds (MPMSolver._contact), so
+    """The solver skips a shape when a point lies outside its body-frame bounds (Colliders.contact), so
     every point of the shape must lie inside them; and they should be tight (exact for each kind)."""
     rng = np.random.default_rng(3)
     for _ in range(20):

@@ -7,8 +7,15 @@ import numpy as np
 import pytest
 
 from benchmarks import validate
-from benchmarks.validate import (DAM_BREAK_TOLERANCE, dam_break_error, load_martin_moyce, run_dam_break, run_leak,
-                                 run_rest, world_physics)
+from benchmarks.validate import (
+    DAM_BREAK_TOLERANCE,
+    dam_break_error,
+    load_martin_moyce,
+    run_dam_break,
+    run_leak,
+    run_rest,
+    world_physics,
+)
 
 #: the default world's liquid model (ppc 9, ghost wall mass, ...): the water the experiment runs
 WORLD = world_physics("default")

@@ -57,8 +57,8 @@ class SimConfig:
     boundary_density: bool = False
     #: outward normal of a box collider where water is inside it (projection, velocity boundary rule):
     #: "analytic" = the nearest face's (physics.box_sdf; both solvers); "central" = a central difference
-    #: of the distance over 0.1 dx, the production rule until session 7. They differ near a box's medial
-    #: axis (a cup's lip corner): partial pours move by about 0.05, their scatter does not (BENCHMARKS.md)
+    #: of the distance over 0.1 dx, the production solver's earlier rule. They differ near a box's medial
+    #: axis (a cup's lip corner): partial pours move by about 0.05, their scatter does not
     box_normals: str = "analytic"
     ppc: int = 4  # particles per cell at rest (must be k**dim)
     n_envs: int = 1  # B, independent environments sharing one set of fields
@@ -116,7 +116,8 @@ class SimConfig:
         need(0.0 <= self.viscosity < math.inf, "viscosity", "a finite value >= 0 Pa s (water 1e-3, honey 2-10)")
         need(self.cfl <= 1.0, "cfl", "(0, 1]")
         k = round(self.ppc ** (1.0 / self.dim))
-        need(self.ppc >= 1 and k**self.dim == self.ppc, "ppc", f"a perfect power k**{self.dim} (e.g. 1, 4, 9, 16 in 2D)")
+        need(self.ppc >= 1 and k**self.dim == self.ppc, "ppc",
+             f"a perfect power k**{self.dim} (e.g. 1, 4, 9, 16 in 2D)")
         for name in ("n_envs", "max_particles", "max_bodies", "max_shapes"):
             need(isinstance(getattr(self, name), int) and getattr(self, name) >= 1, name, "an integer >= 1")
         need(isinstance(self.wall_cells, int) and self.wall_cells >= 2, "wall_cells", "an integer >= 2")

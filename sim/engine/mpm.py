@@ -9,8 +9,9 @@ CPU one kernel launch advances every running environment by many substeps, one t
 (clear grid, body update + particle-to-grid, grid update, grid-to-particle, in a fixed particle order;
 environments in parallel across threads), so runs are bit reproducible and one environment's motion
 cannot change another's numbers (a single large environment instead splits each stage over the threads,
-with the same per-node order of additions: the same bits). On the GPU one launch per substep runs the stages as consecutive
-offloaded loops, in parallel over grid rows and particles, and particle-to-grid scatters with atomics.
+with the same per-node order of additions: the same bits). On the GPU one launch per substep runs the
+stages as consecutive offloaded loops, in parallel over grid rows and particles, and particle-to-grid
+scatters with atomics.
 
 Colliders: tank walls are half-planes; bodies are kinematic rigid bodies (pose + linear and angular
 velocity, prescribed by a controller) made of boxes, capsules and ellipses (2D). Water-wall contact
@@ -86,7 +87,8 @@ class MPMSolver:
         # same (tests/test_sim_solver.py).
         self.threads = int(ti.lang.impl.current_cfg().cpu_max_num_threads) if self.arch == "cpu" else 1
         self._env_block = max(-(-self.B // self.threads), 512)
-        #: slabs of the split path (``_substep_split``): one per thread, at least 2 (so that one thread runs it too: tests)
+        #: slabs of the split path (``_substep_split``): one per thread, at least 2 (so that one thread runs it too:
+        #: tests)
         self._slabs = max(self.threads, 2)
         self._n_running = self.B
         #: the transfers (shared with the differentiable solver) and the particle constants

@@ -101,8 +101,8 @@ def box_sdf(q, half, real: ti.template()):
     same bits wherever |max(a, 0)|^2 >= 1e-30 (inside sqrt(0) + x = x, outside x + 0 = x). Both
     solvers use this normal (``sim.box_normals = "analytic"``). The production solver's earlier rule,
     a central difference of the distance over 0.1 dx (``"central"``), differs near a box's medial axis
-    (a cup's lip corner) and moved partial pours by 0.05; in the f64 solver it also made rollouts
-    non-smooth at the finite-difference scale (BENCHMARKS.md, session 7).
+    (a cup's lip corner) and moves partial pours by 0.05; in the f64 solver it also makes rollouts
+    non-smooth at the finite-difference scale (BENCHMARKS.md, differentiable pours).
     """
     a = ti.abs(q) - half
     sx = 1.0 if q[0] >= 0 else -1.0

@@ -14,7 +14,6 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np
-
 from matplotlib.patches import Polygon, Rectangle  # noqa: E402
 
 import safeio
