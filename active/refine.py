@@ -61,8 +61,8 @@ def refine_plans(
     """
     import time
 
-    from sim.config import ConfigError
     from sim.diff import refine_pours
+    from sim.engine.config import ConfigError
 
     t0 = time.perf_counter()
     out = [np.array(p.actions, float, copy=True) for p in plans]

@@ -35,7 +35,7 @@ CATEGORY_AGREEMENT_MIN = 0.85
 def run_suite(arch: str, n: int, seed: int = 0) -> dict:
     """Execute the fixed batch on ``arch`` and return final states, categories and timing."""
     from benchmarks.sim_execute import OTHER_POURS, REFERENCE_POUR
-    from sim.backend import init_taichi
+    from sim.engine.backend import init_taichi
     from sim.execute import PouringExecutor
     from sim.problems import sample_problems
     from sim.skills import random_actions

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.engine.render import save_gif
 from sim.execute import PouringExecutor
-from sim.render import save_gif
 from sim.skills import move, pour
 from sim.world import WorldConfig
 

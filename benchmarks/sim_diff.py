@@ -8,7 +8,7 @@ Timing/memory: a default-resolution pour (dx = 0.01, theta = 1.8, hold = 0.5 fro
 checkpointing), each in a fresh subprocess so that its peak resident memory is its own. Memory is
 reported twice: ``rss_delta`` = growth of the process's peak RSS (``ru_maxrss``) from just before the
 solver is built to after the backward pass (Taichi fields + host arrays that were actually touched;
-the Python/Taichi runtime before that is excluded), and ``estimate`` = ``DiffMPM.memory_bytes``
+the Python/Taichi runtime before that is excluded), and ``estimate`` = ``DifferentiablePour.memory_estimate``
 (the number the memory check uses). Kernels are compiled by a short warm-up run first.
 
 Agreement: hard fractions in the target / controlled cup after a few whole pours, differentiable
@@ -50,7 +50,6 @@ def _maxrss() -> int:
 def measure(n_envs: int, checkpoint_every: int | None) -> dict:
     """One configuration (run in a fresh process): forward and forward+backward times, memory."""
     from sim.diff import DifferentiablePour
-    from sim.diff_mpm import DiffMPM
     from sim.diff_schedule import production_ticks
     from sim.world import WorldConfig
 
@@ -66,9 +65,7 @@ def measure(n_envs: int, checkpoint_every: int | None) -> dict:
     out = dp.value_and_grad(params, wrt=("x", "y", "theta", "hold"), objective="in_target", horizon=horizon)
     t2 = time.perf_counter()
     rss1 = _maxrss()
-    est = DiffMPM.memory_bytes(
-        n_envs, dp.N, dp.max_substeps, dp.K, dp.sim.res, boundary_density=dp.sim.sc.boundary_density
-    )
+    est = dp.memory_estimate
     dp.close()
     return {
         "n_envs": n_envs,

@@ -44,8 +44,8 @@ def profile(world_name: str = "default", envs: int = 32, substeps: int = 400, ar
     from taichi.profiler.kernel_profiler import get_default_kernel_profiler
 
     from active.run import compose_config
-    from sim.backend import init_taichi
-    from sim.mpm import MPMSolver
+    from sim.engine.backend import init_taichi
+    from sim.engine.mpm import MPMSolver
     from sim.world import WorldConfig
 
     init_taichi(arch, kernel_profiler=True)

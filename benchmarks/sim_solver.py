@@ -19,10 +19,10 @@ import numpy as np
 import taichi as ti
 
 import safeio
-from sim.backend import init_taichi
-from sim.config import SimConfig
-from sim.mpm import MPMSolver
-from sim.scene import Body, EnvSpec, WaterBlock, open_box
+from sim.engine.backend import init_taichi
+from sim.engine.config import SimConfig
+from sim.engine.mpm import MPMSolver
+from sim.engine.scene import Body, EnvSpec, WaterBlock, open_box
 
 
 @ti.data_oriented

@@ -4,10 +4,10 @@
 
 Scene: the peer benchmark's 3D dam break (``benchmarks/peers/dambreak_common.py``: 16,000 particles at
 dx = 10 mm, 128,000 at 5 mm), B = 1. ``MPMSolver.step`` runs it in one task per environment (one thread)
-when the scene holds at most ``sim.mpm._SPLIT_ENV_PARTICLES`` particles and split over the threads
+when the scene holds at most ``sim.engine.mpm._SPLIT_ENV_PARTICLES`` particles and split over the threads
 (``_substep_split``) above. Three paths, alternating round by round (each round continues the same
 simulation in each): ``one_task`` and ``split`` (both with the factored 3D transfers of
-``sim.mpm._FACTORED_TRANSFERS``; they must give the same bits, which is checked), and ``direct``, the one-task
+``sim.engine.mpm._FACTORED_TRANSFERS``; they must give the same bits, which is checked), and ``direct``, the one-task
 path with the direct transfers (the form 2D keeps; the same equations rounded otherwise: the
 reference for the factored form's speed; its state drifts from the others' as any rounding change does in a
 free-surface flow, reported as the largest position difference). Prints particle-substeps/s and the ratios
@@ -28,9 +28,9 @@ import safeio
 sys.path.insert(0, str(Path(__file__).resolve().parent / "peers"))
 import dambreak_common as C  # noqa: E402  (tooling: the peer benchmark's scene, one definition)
 
-import sim.mpm as mpm  # noqa: E402
-from sim.config import SimConfig  # noqa: E402
-from sim.scene import EnvSpec, WaterBlock  # noqa: E402
+import sim.engine.mpm as mpm  # noqa: E402
+from sim.engine.config import SimConfig  # noqa: E402
+from sim.engine.scene import EnvSpec, WaterBlock  # noqa: E402
 
 #: each path's (_SPLIT_ENV_PARTICLES that forces it, _FACTORED_TRANSFERS it compiles with)
 PATHS = {"one_task": (10**12, (3,)), "split": (0, (3,)), "direct": (10**12, ())}

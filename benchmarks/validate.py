@@ -23,10 +23,10 @@ from typing import Any, Mapping
 import numpy as np
 
 import safeio
-from sim.config import SimConfig
-from sim.motion import follow, min_jerk, min_jerk_duration
-from sim.mpm import MPMSolver
-from sim.scene import Body, EnvSpec, WaterBlock, open_box
+from sim.engine.config import SimConfig
+from sim.engine.motion import follow, min_jerk, min_jerk_duration
+from sim.engine.mpm import MPMSolver
+from sim.engine.scene import Body, EnvSpec, WaterBlock, open_box
 
 G = 9.81
 MM_A = 0.05715  # m, Martin & Moyce column base width (2.25 in)

@@ -27,7 +27,7 @@ import torch
 from tqdm.auto import tqdm
 
 import safeio
-from sim.scene import Body
+from sim.engine.scene import Body
 from sim.skills import Obstacles, cup_boundary, plan_schedule
 from task import ACTION_DIM, STATE_DIM, check_world, sample_problems
 from task import SKILL_MOVE as MOVE
@@ -393,7 +393,7 @@ def generate_transitions(
         _add_counts(counts, c)
         bar.set_postfix(transitions=sum(len(p) for p in parts), unstable=counts["unstable"])
     bar.close()
-    from sim.backend import cpu_fingerprint  # Taichi, as above
+    from sim.engine.backend import cpu_fingerprint  # Taichi, as above
 
     out = Transitions.concat(parts)
     out.meta = {

@@ -71,8 +71,9 @@ class DistanceRaster:
             ix, iy = i[k, 0], i[k, 1]
             tx, ty = (f[k] - i[k]).T
             g = self.d
-            d = ((1 - tx) * ((1 - ty) * g[ix, iy] + ty * g[ix, iy + 1])
-                 + tx * ((1 - ty) * g[ix + 1, iy] + ty * g[ix + 1, iy + 1]))
+            d = (1 - tx) * ((1 - ty) * g[ix, iy] + ty * g[ix, iy + 1]) + tx * (
+                (1 - ty) * g[ix + 1, iy] + ty * g[ix + 1, iy + 1]
+            )
             near = np.rint(f[k]).astype(int)
             closer = d < best[k]
             best[k] = np.where(closer, d, best[k])
@@ -83,8 +84,16 @@ class DistanceRaster:
 class ContactPredictor:
     """First contact of move / pour paths with one world's static obstacles (no plant jitter)."""
 
-    def __init__(self, cfg: WorldConfig, world: str = "source", samples: int = 24, refine: int = 8,
-                 spacing: float = 0.06, clearance: float = 0.002, resolution: float | None = 0.001):
+    def __init__(
+        self,
+        cfg: WorldConfig,
+        world: str = "source",
+        samples: int = 24,
+        refine: int = 8,
+        spacing: float = 0.06,
+        clearance: float = 0.002,
+        resolution: float | None = 0.001,
+    ):
         """``resolution``: grid spacing (m) of the obstacles' distance raster; None evaluates every shape
         exactly at every point (slower; the reference of the raster's test)."""
         check_world(world)

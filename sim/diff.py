@@ -130,8 +130,10 @@ def _named_objective(name: str) -> Objective:
         return lambda t, s: (t, np.ones_like(t), np.zeros_like(t))
     if name == "spill":
         return lambda t, s: (s, np.zeros_like(s), np.ones_like(s))
-    raise ConfigError(f"objective = {name!r}: allowed one of {OBJECTIVES} or a callable "
-                      f"(in_target, spill) -> (value, d_in_target, d_spill)")
+    raise ConfigError(
+        f"objective = {name!r}: allowed one of {OBJECTIVES} or a callable "
+        f"(in_target, spill) -> (value, d_in_target, d_spill)"
+    )
 
 
 def available_memory() -> int:
@@ -150,24 +152,52 @@ def _gib(n: float) -> str:
     return f"{n / 2**30:.2f} GiB"
 
 
-def source_solver(cfg: WorldConfig, n_envs: int, n_particles: int, max_substeps: int, checkpoint_every: int,
-                  precision: str = "f64", arch: str = "cpu", soft_width: float | None = None) -> DiffMPM:
+def source_solver(
+    cfg: WorldConfig,
+    n_envs: int,
+    n_particles: int,
+    max_substeps: int,
+    checkpoint_every: int,
+    precision: str = "f64",
+    arch: str = "cpu",
+    soft_width: float | None = None,
+) -> DiffMPM:
     """The differentiable solver of the source world: the controlled cup (body ``CTRL``) driven per substep, the
     target cup standing at its pose, and the two cups' interiors as the regions (``WorldConfig.volume_regions``:
     the controlled cup's in its frame at the end of the rollout, the target cup's in its own)."""
-    bodies = [Body("cup", shapes=cfg.controlled_cup.shapes()),
-              Body("target", pose=cfg.target_pose(), shapes=cfg.target_cup.shapes())]
+    bodies = [
+        Body("cup", shapes=cfg.controlled_cup.shapes()),
+        Body("target", pose=cfg.target_pose(), shapes=cfg.target_cup.shapes()),
+    ]
     _, lo, hi = cfg.volume_regions()
-    return DiffMPM(cfg.sim_config(n_envs), bodies, n_particles, max_substeps, checkpoint_every, driven=(CTRL,),
-                   regions=list(zip(lo.tolist(), hi.tolist())), precision=precision, arch=arch, soft_width=soft_width)
+    return DiffMPM(
+        cfg.sim_config(n_envs),
+        bodies,
+        n_particles,
+        max_substeps,
+        checkpoint_every,
+        driven=(CTRL,),
+        regions=list(zip(lo.tolist(), hi.tolist())),
+        precision=precision,
+        arch=arch,
+        soft_width=soft_width,
+    )
 
 
 class DifferentiablePour:
     """B source-world pours, differentiable w.r.t. (x, y, theta, hold); see the module docstring."""
 
-    def __init__(self, world_cfg: WorldConfig, n_envs: int, checkpoint_every: int | None = None,
-                 max_horizon: float | None = None, arch: str = "cpu", precision: str = "f64",
-                 soft_width: float | None = None, memory_budget: float | None = None):
+    def __init__(
+        self,
+        world_cfg: WorldConfig,
+        n_envs: int,
+        checkpoint_every: int | None = None,
+        max_horizon: float | None = None,
+        arch: str = "cpu",
+        precision: str = "f64",
+        soft_width: float | None = None,
+        memory_budget: float | None = None,
+    ):
         """Check every size against the memory budget, then allocate (and compile lazily).
 
         ``max_horizon`` (s) sizes the fields: default the longest production pour within the world's
@@ -201,8 +231,9 @@ class DifferentiablePour:
         self.precision = precision
         budget = 0.5 * available_memory() if memory_budget is None else float(memory_budget)
         self._check_memory(budget, sc.res, sc.boundary_density)
-        self.sim = source_solver(cfg, self.B, self.N, self.max_substeps, self.K, precision=precision, arch=arch,
-                                 soft_width=soft_width)
+        self.sim = source_solver(
+            cfg, self.B, self.N, self.max_substeps, self.K, precision=precision, arch=arch, soft_width=soft_width
+        )
         self._boundary = cup_boundary(cfg)
         self._target_pose = np.asarray(cfg.target_pose(), float)
         self.last_timing: dict[str, float] = {}
@@ -213,20 +244,24 @@ class DifferentiablePour:
         B, N, S = self.B, self.N, self.max_substeps
 
         def need(b: int, s: int, k: int) -> int:
-            return DiffMPM.memory_bytes(b, N, s, k, res, self.precision, boundary_density=boundary_density,
-                                        n_driven=1, n_regions=2)
+            return DiffMPM.memory_bytes(
+                b, N, s, k, res, self.precision, boundary_density=boundary_density, n_driven=1, n_regions=2
+            )
 
         self.memory_estimate = need(B, S, self.K)
         if self.memory_estimate <= budget:
             return
         ks = np.arange(1, S + 1)
         fits = [int(k) for k in ks if need(B, S, int(k)) <= budget]
-        head = (f"differentiable pour: n_envs = {B}, horizon = {self.max_ticks * self.cfg.control_dt:g} s "
-                f"({S} substeps of {N} particles), checkpoint_every = {self.K} need {_gib(self.memory_estimate)} "
-                f"> memory_budget {_gib(budget)}")
+        head = (
+            f"differentiable pour: n_envs = {B}, horizon = {self.max_ticks * self.cfg.control_dt:g} s "
+            f"({S} substeps of {N} particles), checkpoint_every = {self.K} need {_gib(self.memory_estimate)} "
+            f"> memory_budget {_gib(budget)}"
+        )
         if fits:
-            raise ConfigError(f"{head}; allowed checkpoint_every in [{min(fits)}, {max(fits)}] "
-                              f"(e.g. {int(math.ceil(math.sqrt(S)))})")
+            raise ConfigError(
+                f"{head}; allowed checkpoint_every in [{min(fits)}, {max(fits)}] (e.g. {int(math.ceil(math.sqrt(S)))})"
+            )
         best_k = lambda s: max(1, int(round(math.sqrt(s))))  # noqa: E731
         lo, hi = 0, S
         while lo < hi:  # the longest horizon that fits with sqrt checkpointing
@@ -237,28 +272,37 @@ class DifferentiablePour:
                 hi = mid - 1
         s_fit = lo
         b_fit = max((b for b in range(1, B) if need(b, S, best_k(S)) <= budget), default=0)
-        raise ConfigError(f"{head}, and no checkpoint_every fits (even with checkpointing): allowed horizon "
-                          f"<= {s_fit / self.n_sub * self.cfg.control_dt:.3g} s for n_envs = {B}, or n_envs <= "
-                          f"{b_fit} for this horizon (or a larger memory_budget)")
+        raise ConfigError(
+            f"{head}, and no checkpoint_every fits (even with checkpointing): allowed horizon "
+            f"<= {s_fit / self.n_sub * self.cfg.control_dt:.3g} s for n_envs = {B}, or n_envs <= "
+            f"{b_fit} for this horizon (or a larger memory_budget)"
+        )
 
     def _sample_local(self, fill: float) -> list[np.ndarray]:
         """Water of each environment in the cup frame (upright cup at the origin), production sampling."""
         return [self._sample_local_one(b, fill) for b in range(self.B)]
 
-    def check_params(self, params: np.ndarray, v_ctrl: np.ndarray | None = None,
-                     wrt: Sequence[str] = ()) -> tuple[np.ndarray, np.ndarray]:
+    def check_params(
+        self, params: np.ndarray, v_ctrl: np.ndarray | None = None, wrt: Sequence[str] = ()
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Validate before compute; returns (params (B, 4) float64, v_ctrl (B,))."""
         bad = [w for w in wrt if w not in DIFFERENTIABLE]
         if isinstance(wrt, str) or bad:
-            raise ConfigError(f"wrt = {list(wrt) if not isinstance(wrt, str) else wrt!r}: "
-                              f"{bad or wrt!r} not differentiable; allowed names {sorted(DIFFERENTIABLE)} "
-                              f"(columns of params: {list(PARAMS)})")
+            raise ConfigError(
+                f"wrt = {list(wrt) if not isinstance(wrt, str) else wrt!r}: "
+                f"{bad or wrt!r} not differentiable; allowed names {sorted(DIFFERENTIABLE)} "
+                f"(columns of params: {list(PARAMS)})"
+            )
         p = np.asarray(params, float)
         if p.shape != (self.B, 4):
             raise ConfigError(f"params: expected shape ({self.B}, 4) = (n_envs, {list(PARAMS)}), got {p.shape}")
         sk = self.cfg.skills
-        ranges = {"x": ("skills.move.x", sk["move"]["x"]), "y": ("skills.move.y", sk["move"]["y"]),
-                  "theta": ("skills.pour.theta", sk["pour"]["theta"]), "hold": ("skills.pour.hold", sk["pour"]["hold"])}
+        ranges = {
+            "x": ("skills.move.x", sk["move"]["x"]),
+            "y": ("skills.move.y", sk["move"]["y"]),
+            "theta": ("skills.pour.theta", sk["pour"]["theta"]),
+            "hold": ("skills.pour.hold", sk["pour"]["hold"]),
+        }
         for j, name in enumerate(PARAMS):
             key, (lo, hi) = ranges[name]
             col = p[:, j]
@@ -273,28 +317,41 @@ class DifferentiablePour:
         for b in range(self.B):
             name = start_overlap(obst, self._boundary, np.array([p[b, 0], p[b, 1], 0.0]))
             if name is not None:
-                raise ConfigError(f"params[{b}] (x, y) = ({p[b, 0]:g}, {p[b, 1]:g}): the cup overlaps the {name} "
-                                  f"there; choose a start pose clear of every obstacle")
+                raise ConfigError(
+                    f"params[{b}] (x, y) = ({p[b, 0]:g}, {p[b, 1]:g}): the cup overlaps the {name} "
+                    f"there; choose a start pose clear of every obstacle"
+                )
         return p, v
 
     def _obstacles(self) -> Obstacles:
-        return Obstacles(self.cfg.obstacle_bodies("source"), np.full(2, self.cfg.floor),
-                         np.asarray(self.cfg.sim["domain"], float) - self.cfg.floor)
+        return Obstacles(
+            self.cfg.obstacle_bodies("source"),
+            np.full(2, self.cfg.floor),
+            np.asarray(self.cfg.sim["domain"], float) - self.cfg.floor,
+        )
 
     def _ticks(self, p: np.ndarray, horizon: float | None) -> int:
         ticks = horizon_ticks(self.cfg, p, horizon)
         if ticks > self.max_ticks:
-            raise ConfigError(f"horizon = {ticks * self.cfg.control_dt:g} s (needed by these pours) exceeds the "
-                              f"max_horizon = {self.max_ticks * self.cfg.control_dt:g} s this DifferentiablePour was "
-                              f"sized for: allowed horizon <= {self.max_ticks * self.cfg.control_dt:g} s "
-                              f"(build it with a larger max_horizon)")
+            raise ConfigError(
+                f"horizon = {ticks * self.cfg.control_dt:g} s (needed by these pours) exceeds the "
+                f"max_horizon = {self.max_ticks * self.cfg.control_dt:g} s this DifferentiablePour was "
+                f"sized for: allowed horizon <= {self.max_ticks * self.cfg.control_dt:g} s "
+                f"(build it with a larger max_horizon)"
+            )
         return ticks
 
     def stuck(self, p: np.ndarray) -> np.ndarray:
         """Whether each pour's production schedule runs into the target cup or the tank."""
         obst = self._obstacles()
-        return np.array([plan_schedule(self.cfg, np.array([p[b, 0], p[b, 1], 0.0]), pour(p[b, 2], p[b, 3])[None],
-                                       obst, self._boundary).stuck for b in range(self.B)])
+        return np.array(
+            [
+                plan_schedule(
+                    self.cfg, np.array([p[b, 0], p[b, 1], 0.0]), pour(p[b, 2], p[b, 3])[None], obst, self._boundary
+                ).stuck
+                for b in range(self.B)
+            ]
+        )
 
     # ------------------------------------------------------------------ compute
     def _initial(self, p: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -310,9 +367,10 @@ class DifferentiablePour:
     def _sample_local_one(self, b: int, fill: float) -> np.ndarray:
         """Environment b's water, ``fill`` of the full cup, in the cup frame (seed [sim.seed, b], as production)."""
         cc = self.cfg.controlled_cup
-        spec = EnvSpec(bodies=[Body("cup", shapes=cc.shapes())],
-                       water=[WaterBlock((-cc.inner_width / 2, 0.0), (cc.inner_width / 2, cc.fill_height * fill),
-                                         body="cup")])
+        spec = EnvSpec(
+            bodies=[Body("cup", shapes=cc.shapes())],
+            water=[WaterBlock((-cc.inner_width / 2, 0.0), (cc.inner_width / 2, cc.fill_height * fill), body="cup")],
+        )
         return sample_water(spec, self.dx, self.ppc, np.random.default_rng([self.seed, b]), self.jitter).astype(float)
 
     def _hard(self, x: np.ndarray, n: np.ndarray, end_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -331,8 +389,14 @@ class DifferentiablePour:
                 out[r, b] = inside.sum() / max(n[b], 1)
         return out[0], out[1]
 
-    def _run(self, params: np.ndarray, v_ctrl: np.ndarray | None, horizon: float | None,
-             wrt: Sequence[str], objective: str | Objective | None) -> PourOutcome:
+    def _run(
+        self,
+        params: np.ndarray,
+        v_ctrl: np.ndarray | None,
+        horizon: float | None,
+        wrt: Sequence[str],
+        objective: str | Objective | None,
+    ) -> PourOutcome:
         p, v = self.check_params(params, v_ctrl, wrt)
         if objective is not None and not callable(objective):
             objective = _named_objective(objective)
@@ -349,9 +413,18 @@ class DifferentiablePour:
         hard_c, hard_t = self._hard(x_end.astype(float), n, end_pose)
         soft_c, soft_t = soft[:, 0].astype(float), soft[:, 1].astype(float)
         nan = ~np.isfinite(x_end).all(axis=(1, 2)) | ~np.isfinite(soft_c) | ~np.isfinite(soft_t)
-        out = PourOutcome(in_target_soft=soft_t, in_ctrl_soft=soft_c, spill_soft=1.0 - soft_c - soft_t,
-                          in_target=hard_t, in_ctrl=hard_c, spill=1.0 - hard_c - hard_t, stuck=stuck, nan=nan,
-                          horizon=ticks * self.cfg.control_dt, substeps=traj.substeps)
+        out = PourOutcome(
+            in_target_soft=soft_t,
+            in_ctrl_soft=soft_c,
+            spill_soft=1.0 - soft_c - soft_t,
+            in_target=hard_t,
+            in_ctrl=hard_c,
+            spill=1.0 - hard_c - hard_t,
+            stuck=stuck,
+            nan=nan,
+            horizon=ticks * self.cfg.control_dt,
+            substeps=traj.substeps,
+        )
         timing = {"setup": t1 - t0, "forward": t2 - t1}
         if objective is not None:
             value, d_t, d_s = (np.asarray(a, float) for a in objective(out.in_target_soft, out.spill_soft))
@@ -373,14 +446,20 @@ class DifferentiablePour:
         self.last_timing = timing
         return out
 
-    def forward(self, params: np.ndarray, v_ctrl: np.ndarray | None = None,
-                horizon: float | None = None) -> PourOutcome:
+    def forward(
+        self, params: np.ndarray, v_ctrl: np.ndarray | None = None, horizon: float | None = None
+    ) -> PourOutcome:
         """Outcome of B pours (no gradient); ``horizon`` in s, default the longest production pour."""
         return self._run(params, v_ctrl, horizon, (), None)
 
-    def value_and_grad(self, params: np.ndarray, wrt: Sequence[str] = ("theta", "hold"),
-                       objective: str | Objective = "in_target", v_ctrl: np.ndarray | None = None,
-                       horizon: float | None = None) -> PourOutcome:
+    def value_and_grad(
+        self,
+        params: np.ndarray,
+        wrt: Sequence[str] = ("theta", "hold"),
+        objective: str | Objective = "in_target",
+        v_ctrl: np.ndarray | None = None,
+        horizon: float | None = None,
+    ) -> PourOutcome:
         """Outcome, per-environment objective and its gradient w.r.t. the parameters named in ``wrt``.
 
         ``objective``: "in_target" (soft fraction in the target cup), "spill", or a callable
@@ -399,8 +478,9 @@ def _skill_ranges(cfg: WorldConfig) -> tuple[np.ndarray, np.ndarray]:
     return np.array([a for a, _ in r], float), np.array([b for _, b in r], float)
 
 
-def _refine_arguments(params: np.ndarray, goals: np.ndarray, steps: int, lr: float,
-                      spill_weight: float) -> tuple[np.ndarray, np.ndarray]:
+def _refine_arguments(
+    params: np.ndarray, goals: np.ndarray, steps: int, lr: float, spill_weight: float
+) -> tuple[np.ndarray, np.ndarray]:
     """``refine_pours``' arguments checked before compute: (params (B, 4), goals (B,))."""
     p0 = np.asarray(params, float)
     B = p0.shape[0] if p0.ndim == 2 else -1
@@ -418,10 +498,20 @@ def _refine_arguments(params: np.ndarray, goals: np.ndarray, steps: int, lr: flo
     return p0, g
 
 
-def refine_pours(world_cfg: WorldConfig, params: np.ndarray, goals: np.ndarray, v_ctrl: np.ndarray | None = None,
-                 steps: int = 10, lr: float = 0.05, wrt: Sequence[str] = ("theta", "hold"), spill_weight: float = 1.0,
-                 horizon: float | None = None, progress: bool = True, pour_sim: DifferentiablePour | None = None,
-                 **sim_kwargs) -> RefineResult:
+def refine_pours(
+    world_cfg: WorldConfig,
+    params: np.ndarray,
+    goals: np.ndarray,
+    v_ctrl: np.ndarray | None = None,
+    steps: int = 10,
+    lr: float = 0.05,
+    wrt: Sequence[str] = ("theta", "hold"),
+    spill_weight: float = 1.0,
+    horizon: float | None = None,
+    progress: bool = True,
+    pour_sim: DifferentiablePour | None = None,
+    **sim_kwargs,
+) -> RefineResult:
     """Refine B pours towards their goal amounts by projected Adam steps in the source world.
 
     Minimises (soft_in_target - goal)^2 + spill_weight * soft_spill^2 per environment over the
@@ -465,17 +555,31 @@ def refine_pours(world_cfg: WorldConfig, params: np.ndarray, goals: np.ndarray, 
         bad = out.nan | ~np.isfinite(out.value) | ~np.isfinite(grad).all(1)
         new_fail = bad & ~failed
         for b in np.flatnonzero(new_fail):
-            log.warning("refine_pours: env %d went NaN at step %d (params %s); keeping its initial parameters",
-                        b, k, p[b].tolist())
+            log.warning(
+                "refine_pours: env %d went NaN at step %d (params %s); keeping its initial parameters",
+                b,
+                k,
+                p[b].tolist(),
+            )
         failed |= bad
         if k == 0:
             loss0 = np.where(failed, np.nan, out.value)
         ok = ~failed & ~out.stuck & (out.value < best_loss)
         best_loss[ok], best_p[ok] = out.value[ok], p[ok]
         best_t[ok], best_s[ok] = out.in_target_soft[ok], out.spill_soft[ok]
-        history.append({"step": k, "params": p.copy(), "loss": out.value.copy(), "in_target": out.in_target_soft.copy(),
-                        "in_target_hard": out.in_target.copy(), "spill": out.spill_soft.copy(),
-                        "grad": grad.copy(), "stuck": out.stuck.copy(), "failed": failed.copy()})
+        history.append(
+            {
+                "step": k,
+                "params": p.copy(),
+                "loss": out.value.copy(),
+                "in_target": out.in_target_soft.copy(),
+                "in_target_hard": out.in_target.copy(),
+                "spill": out.spill_soft.copy(),
+                "grad": grad.copy(),
+                "stuck": out.stuck.copy(),
+                "failed": failed.copy(),
+            }
+        )
         if progress:
             it.set_postfix(loss=f"{np.nanmean(np.where(failed, np.nan, out.value)):.4f}")
         if k < steps:  # the last evaluation only scores the final step
@@ -486,15 +590,24 @@ def refine_pours(world_cfg: WorldConfig, params: np.ndarray, goals: np.ndarray, 
     best_p[failed] = p0[failed]
     if pour_sim is None:
         sim.close()
-    return RefineResult(params=best_p, initial_params=p0, loss_initial=loss0, loss_best=best_loss,
-                        in_target_best=best_t, spill_best=best_s, failed=failed, history=history,
-                        wall_seconds=time.perf_counter() - t_start)
+    return RefineResult(
+        params=best_p,
+        initial_params=p0,
+        loss_initial=loss0,
+        loss_best=best_loss,
+        in_target_best=best_t,
+        spill_best=best_s,
+        failed=failed,
+        history=history,
+        wall_seconds=time.perf_counter() - t_start,
+    )
 
 
 # ---------------------------------------------------------------------------------- CLI
 def main(argv: Sequence[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m sim.diff",
-                                 description="Outcome and gradient of one source-world pour.")
+    ap = argparse.ArgumentParser(
+        prog="python -m sim.diff", description="Outcome and gradient of one source-world pour."
+    )
     ap.add_argument("--x", type=float, default=0.31)
     ap.add_argument("--y", type=float, default=0.14)
     ap.add_argument("--theta", type=float, default=1.5)
@@ -505,8 +618,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     cfg = WorldConfig.load()
     dp = DifferentiablePour(cfg, 1, checkpoint_every=args.checkpoint_every, arch=args.arch)
     out = dp.value_and_grad(np.array([[args.x, args.y, args.theta, args.hold]]), wrt=PARAMS)
-    print(f"in_target soft {out.in_target_soft[0]:.4f} hard {out.in_target[0]:.4f}; spill soft {out.spill_soft[0]:.4f} "
-          f"hard {out.spill[0]:.4f}; horizon {out.horizon:g} s ({out.substeps} substeps)")
+    print(
+        f"in_target soft {out.in_target_soft[0]:.4f} hard {out.in_target[0]:.4f}; spill soft {out.spill_soft[0]:.4f} "
+        f"hard {out.spill[0]:.4f}; horizon {out.horizon:g} s ({out.substeps} substeps)"
+    )
     print("d in_target_soft / d " + ", ".join(f"{k} = {v[0]:+.4g}" for k, v in out.gradients.items()))
     print("timing " + ", ".join(f"{k} {v:.2f} s" for k, v in dp.last_timing.items()))
 

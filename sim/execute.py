@@ -83,14 +83,17 @@ def scene_obstacles(cfg: WorldConfig, bodies: Sequence) -> Obstacles:
     return Obstacles(list(bodies), lo, hi)
 
 
-def schedule_trajectory(cfg: WorldConfig, boundary: np.ndarray, bodies: Sequence, start: np.ndarray,
-                        actions: np.ndarray, b: int) -> Schedule:
+def schedule_trajectory(
+    cfg: WorldConfig, boundary: np.ndarray, bodies: Sequence, start: np.ndarray, actions: np.ndarray, b: int
+) -> Schedule:
     """The cup schedule of environment ``b`` (its start pose checked against the obstacles first)."""
     obst = scene_obstacles(cfg, bodies)
     name = start_overlap(obst, boundary, start)
     if name is not None:
-        raise ValueError(f"starts[{b}] = {np.asarray(start).tolist()}: the cup overlaps the {name} there; "
-                         f"choose a start pose clear of every obstacle")
+        raise ValueError(
+            f"starts[{b}] = {np.asarray(start).tolist()}: the cup overlaps the {name} there; "
+            f"choose a start pose clear of every obstacle"
+        )
     return plan_schedule(cfg, start, actions, obst, boundary)
 
 
@@ -143,8 +146,11 @@ class PouringExecutor:
             workers = min(SCHEDULE_THREADS, cpus)
             if self._schedule_pool is None:
                 self._schedule_pool = ProcessPoolExecutor(
-                    workers, mp_context=multiprocessing.get_context("spawn"),
-                    initializer=_init_schedule_worker, initargs=(self.cfg, self._boundary))
+                    workers,
+                    mp_context=multiprocessing.get_context("spawn"),
+                    initializer=_init_schedule_worker,
+                    initargs=(self.cfg, self._boundary),
+                )
             try:
                 return list(self._schedule_pool.map(_schedule_in_worker, jobs, chunksize=max(1, B // (4 * workers))))
             except BrokenProcessPool as e:  # a worker died: the batch goes on in this process
@@ -157,8 +163,9 @@ class PouringExecutor:
                 return list(pool.map(one, jobs))
         return [one(job) for job in jobs]
 
-    def start_obstacles(self, world: str, starts: np.ndarray,
-                        plant_jitter: np.ndarray | None = None) -> list[str | None]:
+    def start_obstacles(
+        self, world: str, starts: np.ndarray, plant_jitter: np.ndarray | None = None
+    ) -> list[str | None]:
         """Per start pose (x, y[, theta]): the obstacle the cup would overlap there (what :meth:`run` refuses),
         or None where it is clear. For callers that build start grids, such as benchmarks."""
         check_world(world)
@@ -166,17 +173,26 @@ class PouringExecutor:
         if starts.shape[1] == 2:
             starts = np.concatenate([starts, np.zeros((len(starts), 1))], 1)
         jit = np.zeros((len(starts), 3)) if plant_jitter is None else np.asarray(plant_jitter, float).reshape(-1, 3)
-        return [start_overlap(self._obstacles(self.cfg.scene(world, p, j)), self._boundary, p)
-                for p, j in zip(starts, jit)]
+        return [
+            start_overlap(self._obstacles(self.cfg.scene(world, p, j)), self._boundary, p) for p, j in zip(starts, jit)
+        ]
 
     def _obstacles(self, spec) -> Obstacles:
         """The scene's bodies other than the controlled cup, inside the tank's interior."""
         return scene_obstacles(self.cfg, spec.bodies[1:])
 
-    def run(self, world: str, starts: np.ndarray, actions: Sequence[Sequence[Sequence[float]]],
-            plant_jitter: np.ndarray | None = None, goals: Sequence[float] | None = None,
-            frame_every: float | None = None, progress: bool = False,
-            freeze_done: bool = True, slots: Sequence[int] | None = None) -> list[TrajectoryResult]:
+    def run(
+        self,
+        world: str,
+        starts: np.ndarray,
+        actions: Sequence[Sequence[Sequence[float]]],
+        plant_jitter: np.ndarray | None = None,
+        goals: Sequence[float] | None = None,
+        frame_every: float | None = None,
+        progress: bool = False,
+        freeze_done: bool = True,
+        slots: Sequence[int] | None = None,
+    ) -> list[TrajectoryResult]:
         """Execute ``actions[b]`` from cup pose ``starts[b]`` (x, y[, theta]) in every environment b.
 
         ``slots[b]``: the particle-sampling slot of environment b (default b; :meth:`MPMSolver.reset`):
@@ -205,16 +221,35 @@ class PouringExecutor:
         rollout = _Rollout(self.cfg, solver, scheds, frame_every)
         rollout.play(f"simulate {len(acts)} x {world}", progress, freeze_done)
         unstable = solver.report_unstable()
-        results = [trajectory_result(self.cfg, rollout.obs[b], acts[b], scheds[b], None if goals is None else goals[b],
-                                     bool(unstable[b]), rollout.frames[b] if rollout.frames is not None else None)
-                   for b in range(len(acts))]
-        timing.update(rollout.timing(freeze_done), total=time.perf_counter() - t_all,
-                      sim_seconds=rollout.K * rollout.h, substeps=rollout.K * rollout.n_sub)
+        results = [
+            trajectory_result(
+                self.cfg,
+                rollout.obs[b],
+                acts[b],
+                scheds[b],
+                None if goals is None else goals[b],
+                bool(unstable[b]),
+                rollout.frames[b] if rollout.frames is not None else None,
+            )
+            for b in range(len(acts))
+        ]
+        timing.update(
+            rollout.timing(freeze_done),
+            total=time.perf_counter() - t_all,
+            sim_seconds=rollout.K * rollout.h,
+            substeps=rollout.K * rollout.n_sub,
+        )
         self.last_timing = timing
         return results
 
-    def _inputs(self, world: str, starts: np.ndarray, actions: Sequence[Sequence[Sequence[float]]],
-                plant_jitter: np.ndarray | None, goals: Sequence[float] | None) -> tuple:
+    def _inputs(
+        self,
+        world: str,
+        starts: np.ndarray,
+        actions: Sequence[Sequence[Sequence[float]]],
+        plant_jitter: np.ndarray | None,
+        goals: Sequence[float] | None,
+    ) -> tuple:
         """``run``'s arguments checked: (starts (B, 3), goals (B,) or None, actions as executed, scenes)."""
         starts = np.asarray(starts, float)
         B = len(actions)
@@ -240,8 +275,9 @@ class _Rollout:
         self.solver = solver
         B = len(scheds)
         self.K = max(len(s.poses) for s in scheds) - 1
-        poses = np.stack([np.concatenate([s.poses, np.repeat(s.poses[-1:], self.K + 1 - len(s.poses), 0)])
-                          for s in scheds])  # (B, K + 1, 3)
+        poses = np.stack(
+            [np.concatenate([s.poses, np.repeat(s.poses[-1:], self.K + 1 - len(s.poses), 0)]) for s in scheds]
+        )  # (B, K + 1, 3)
         solver.load_schedule(CTRL, poses)
         self.regions = cfg.volume_regions()
         self.n_part = solver.particle_counts().astype(float)
@@ -296,12 +332,22 @@ class _Rollout:
 
     def timing(self, freeze_done: bool) -> dict:
         B, K = len(self.obs), self.K
-        return {"env_ticks_run": int(np.minimum(self.last_tick, K).sum()) if freeze_done else B * K,
-                "env_ticks": B * K, **self.seconds}
+        return {
+            "env_ticks_run": int(np.minimum(self.last_tick, K).sum()) if freeze_done else B * K,
+            "env_ticks": B * K,
+            **self.seconds,
+        }
 
 
-def trajectory_result(cfg: WorldConfig, observed: list[np.ndarray], acts: np.ndarray, sched: Schedule,
-                      goal: float | None, unstable: bool, frames: list[dict] | None) -> TrajectoryResult:
+def trajectory_result(
+    cfg: WorldConfig,
+    observed: list[np.ndarray],
+    acts: np.ndarray,
+    sched: Schedule,
+    goal: float | None,
+    unstable: bool,
+    frames: list[dict] | None,
+) -> TrajectoryResult:
     """One environment's trajectory from its observed states (one per action end, tick 0 first): its steps (under
     ``world.plant.on_contact: stuck``, the actions left after the plant caught the cup as steps without effect),
     goal, spill and category."""
@@ -314,9 +360,20 @@ def trajectory_result(cfg: WorldConfig, observed: list[np.ndarray], acts: np.nda
         n_exec = len(acts)
     max_spill = cfg.problems["max_spill"]
     g = None if goal is None else float(goal)
-    reached = None if g is None else bool(goal_reached(states[-1], g, cfg.problems["tolerance"], max_spill)
-                                         and not unstable)
+    reached = (
+        None if g is None else bool(goal_reached(states[-1], g, cfg.problems["tolerance"], max_spill) and not unstable)
+    )
     return TrajectoryResult(
-        states=states, actions=acts[:n_exec], steps=steps, requested_actions=len(acts), goal=g, goal_reached=reached,
-        final_spill=float(spill(states[-1])), stuck=sched.stuck, stuck_on=sched.stuck_on,
-        category=categorise(states, sched.stuck_on, unstable, max_spill), unstable=unstable, frames=frames)
+        states=states,
+        actions=acts[:n_exec],
+        steps=steps,
+        requested_actions=len(acts),
+        goal=g,
+        goal_reached=reached,
+        final_spill=float(spill(states[-1])),
+        stuck=sched.stuck,
+        stuck_on=sched.stuck_on,
+        category=categorise(states, sched.stuck_on, unstable, max_spill),
+        unstable=unstable,
+        frames=frames,
+    )

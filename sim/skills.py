@@ -66,8 +66,10 @@ def validate_actions(cfg: WorldConfig, seqs: Sequence[Sequence[Sequence[float]]]
                     if sk.get("clip_parameters") and math.isfinite(val):
                         a[t, 1 + j] = min(max(val, lo), hi)
                     else:
-                        raise ValueError(f"action sequence {i} step {t}: {name} = {val:g} outside its range "
-                                         f"[{lo:g}, {hi:g}] (skills.{name}; set skills.clip_parameters to clip)")
+                        raise ValueError(
+                            f"action sequence {i} step {t}: {name} = {val:g} outside its range "
+                            f"[{lo:g}, {hi:g}] (skills.{name}; set skills.clip_parameters to clip)"
+                        )
         moves = a[:, 0] == MOVE
         a[moves, 1:3] = on_lattice(a[moves, 1:3], lattice)
         out.append(a)
@@ -228,8 +230,9 @@ def start_overlap(obstacles: "Obstacles", boundary: np.ndarray, pose: np.ndarray
     return "tank wall" if who < 0 else f"{obstacles.bodies[who].name} body"
 
 
-def plan_schedule(cfg: WorldConfig, start: np.ndarray, actions: np.ndarray, obstacles: Obstacles,
-                  boundary: np.ndarray) -> Schedule:
+def plan_schedule(
+    cfg: WorldConfig, start: np.ndarray, actions: np.ndarray, obstacles: Obstacles, boundary: np.ndarray
+) -> Schedule:
     """Pose-versus-tick schedule of a whole action sequence, stopping at the first contact (the plant's
     contacts only block their action when ``cfg.plant_on_contact == "hold"``)."""
     h = cfg.control_dt

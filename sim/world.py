@@ -86,9 +86,13 @@ class WorldConfig:
         sc = self.sim_config(1)
         if self.control_dt < sc.dt:
             raise ConfigError(f"world.control_dt = {self.control_dt} must be >= sim.dt = {sc.dt}")
-        for name, rng in (("skills.move.x", self.skills["move"]["x"]), ("skills.move.y", self.skills["move"]["y"]),
-                          ("skills.pour.theta", self.skills["pour"]["theta"]),
-                          ("skills.pour.hold", self.skills["pour"]["hold"]), ("problems.goal", self.problems["goal"])):
+        for name, rng in (
+            ("skills.move.x", self.skills["move"]["x"]),
+            ("skills.move.y", self.skills["move"]["y"]),
+            ("skills.pour.theta", self.skills["pour"]["theta"]),
+            ("skills.pour.hold", self.skills["pour"]["hold"]),
+            ("problems.goal", self.problems["goal"]),
+        ):
             if len(rng) != 2 or not rng[0] <= rng[1]:
                 raise ConfigError(f"world.{name} = {rng}: allowed a [low, high] pair with low <= high")
         g0, g1 = self.problems["goal"]
@@ -96,8 +100,9 @@ class WorldConfig:
             raise ConfigError(f"world.problems.goal = {[g0, g1]}: allowed a sub-range of [0, 1]")
         lat = self.skills.get("lattice", 0.0)
         if not (isinstance(lat, (int, float)) and 0 <= lat <= 0.05):
-            raise ConfigError(f"world.skills.lattice = {lat!r}: allowed 0 (continuous positions) or a spacing "
-                              f"in (0, 0.05] m")
+            raise ConfigError(
+                f"world.skills.lattice = {lat!r}: allowed 0 (continuous positions) or a spacing in (0, 0.05] m"
+            )
         if self.plant_on_contact not in PLANT_CONTACT:
             raise ConfigError(f"world.plant.on_contact = {self.plant_on_contact!r}: allowed {', '.join(PLANT_CONTACT)}")
         if not 1 <= int(self.skills["max_actions"]) <= 6:
@@ -128,8 +133,9 @@ class WorldConfig:
         h, r = self.plant["stem_height"], self.plant["stem_radius"]
         shapes = [Shape("capsule", center=(0.0, h / 2), angle=math.pi / 2, size=(h / 2, r))]
         for leaf in self.plant["leaves"]:
-            shapes.append(Shape("ellipse", center=tuple(leaf["center"]), angle=float(leaf["angle"]),
-                                size=tuple(leaf["radii"])))
+            shapes.append(
+                Shape("ellipse", center=tuple(leaf["center"]), angle=float(leaf["angle"]), size=tuple(leaf["radii"]))
+            )
         return shapes
 
     def obstacle_bodies(self, world: str, plant_jitter: np.ndarray | None = None) -> list[Body]:
@@ -139,8 +145,13 @@ class WorldConfig:
             bodies.append(Body("plant", pose=self.plant_pose(plant_jitter), shapes=self.plant_shapes()))
         return bodies
 
-    def scene(self, world: str, cup_pose: tuple[float, float, float], plant_jitter: np.ndarray | None = None,
-              full: bool = True) -> EnvSpec:
+    def scene(
+        self,
+        world: str,
+        cup_pose: tuple[float, float, float],
+        plant_jitter: np.ndarray | None = None,
+        full: bool = True,
+    ) -> EnvSpec:
         """The environment for one problem: controlled cup (full) at ``cup_pose`` plus obstacles."""
         cc = self.controlled_cup
         cup = Body("cup", pose=tuple(float(v) for v in cup_pose), shapes=cc.shapes())
@@ -156,4 +167,3 @@ class WorldConfig:
             lo.append([-cup.inner_width / 2 - tol, -tol])
             hi.append([cup.inner_width / 2 + tol, cup.inner_height + tol])
         return [CTRL, TARGET], np.array(lo), np.array(hi)
-

@@ -55,7 +55,7 @@ def test_check_says_whether_the_shipped_files_match(tmp_path, monkeypatch, capsy
 
 
 #: Largest difference allowed between the shipped states and states simulated again on a CPU of another kind
-#: (``sim.backend.cpu_fingerprint``). Measured: 0.0 on every value of the 115 rows of batch 0, simulated on an
+#: (``sim.engine.backend.cpu_fingerprint``). Measured: 0.0 on every value of the 115 rows of batch 0, simulated on an
 #: AVX-512 machine against the shipped rows made on an AVX2 one (the simulator runs without fast math and its
 #: host side uses libm's scalar functions). The states are float32: 1e-6 is a few units in their last place
 #: (theta reaches 2.5 rad), far below one particle's share of the water (1/462 = 0.0022) or any pose change,
@@ -65,7 +65,7 @@ OTHER_CPU_ATOL = 1e-6
 
 def _same_states(again, ds, rows, made_on: str | None) -> None:
     """Bit for bit where this CPU is of the kind that made the rows; within :data:`OTHER_CPU_ATOL` elsewhere."""
-    from sim.backend import cpu_fingerprint
+    from sim.engine.backend import cpu_fingerprint
 
     here = cpu_fingerprint()
     for k in ("s", "s_next"):
@@ -85,10 +85,10 @@ def test_first_shard_regenerates_bit_for_bit():
     """Batch 0 of the shipped dataset, simulated again on this CPU, is identical to the shipped rows: what
     the data sampler decides (actions, trajectories, steps, stuck flags) on any machine; the simulated
     states bit for bit on a CPU with the vector instruction sets of the machine that made the file
-    (``sim.backend.cpu_fingerprint``), within :data:`OTHER_CPU_ATOL` on another. (States made with Taichi's
+    (``sim.engine.backend.cpu_fingerprint``), within :data:`OTHER_CPU_ATOL` on another. (States made with Taichi's
     fast math or numpy's vectorised trigonometry moved by a few particles in half of the trajectories on
     another CPU; the simulator uses neither.)"""
-    from sim.backend import cpu_fingerprint
+    from sim.engine.backend import cpu_fingerprint
 
     c, dh = _default()
     ds = Transitions.load(train_mod.find_shipped(dh), expected_hash=dh)

@@ -7,8 +7,14 @@ from benchmarks.check_arch import compare
 
 def _suite(arch, states, cats, unstable=None):
     n = len(states)
-    return {"arch": arch, "final_states": np.asarray(states, float).tolist(), "categories": cats,
-            "executed": [2] * n, "unstable": unstable or [False] * n, "wall_seconds": 1.0}
+    return {
+        "arch": arch,
+        "final_states": np.asarray(states, float).tolist(),
+        "categories": cats,
+        "executed": [2] * n,
+        "unstable": unstable or [False] * n,
+        "wall_seconds": 1.0,
+    }
 
 
 def test_identical_runs_pass():

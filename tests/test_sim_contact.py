@@ -187,8 +187,18 @@ def test_planner_prunes_a_move_stopped_just_short_of_its_target(world):
             return np.repeat(a, k, 0)
 
     def refill(dynamics):
-        search = _Search(_Evaluator(dynamics, None, _Fixed()), cfg, s[0], 0.5, 0.05, 2.0, 0.07,
-                         np.random.default_rng(0), 100, float("inf"))
+        search = _Search(
+            _Evaluator(dynamics, None, _Fixed()),
+            cfg,
+            s[0],
+            0.5,
+            0.05,
+            2.0,
+            0.07,
+            np.random.default_rng(0),
+            100,
+            float("inf"),
+        )
         return search._refill(0, 4, 0).size
 
     assert refill(dyn) == 0

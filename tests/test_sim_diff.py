@@ -107,8 +107,14 @@ def test_gradients_match_central_differences_without_ghost_mass(cfg):
     """The previous water model (ppc 4, no ghost mass, volume_relax 0.02 s): env 0 is smooth in all four
     parameters (AD = FD to < 1 %); env 1 (other particle jitter) is not smooth in x, y, theta."""
     sim = dict(cfg.sim, ppc=4, boundary_density=False, volume_relax=0.02, max_particles=256)
-    plain = WorldConfig.from_mapping({**cfg.__dict__, "sim": sim, "controlled_cup": cfg.controlled_cup.__dict__,
-                                      "target_cup": cfg.target_cup.__dict__})
+    plain = WorldConfig.from_mapping(
+        {
+            **cfg.__dict__,
+            "sim": sim,
+            "controlled_cup": cfg.controlled_cup.__dict__,
+            "target_cup": cfg.target_cup.__dict__,
+        }
+    )
     d = DifferentiablePour(plain, 2, max_horizon=HORIZON, soft_width=SOFT)
     try:
         _check_gradients(d, set(PARAMS))
@@ -142,12 +148,15 @@ def test_non_differentiable_parameter_names_the_allowed_ones(dp, name):
         dp.value_and_grad(P, wrt=("theta", name), horizon=HORIZON)
 
 
-@pytest.mark.parametrize("col,value,match", [
-    (2, 2.5, r"theta\) = 2.5 is outside skills.pour.theta = \[0, 2.2\]"),
-    (3, -0.1, r"hold\) = -0.1 is outside skills.pour.hold = \[0, 1\]"),
-    (0, 0.6, r"x\) = 0.6 is outside skills.move.x = \[0.1, 0.51\]"),
-    (1, float("nan"), r"y\) = nan is outside skills.move.y"),
-])
+@pytest.mark.parametrize(
+    "col,value,match",
+    [
+        (2, 2.5, r"theta\) = 2.5 is outside skills.pour.theta = \[0, 2.2\]"),
+        (3, -0.1, r"hold\) = -0.1 is outside skills.pour.hold = \[0, 1\]"),
+        (0, 0.6, r"x\) = 0.6 is outside skills.move.x = \[0.1, 0.51\]"),
+        (1, float("nan"), r"y\) = nan is outside skills.move.y"),
+    ],
+)
 def test_out_of_range_parameter_names_field_and_range(dp, col, value, match):
     p = P.copy()
     p[1, col] = value
@@ -188,9 +197,14 @@ def _field_bytes(sim: DiffMPM) -> int:
 def test_memory_estimate_is_what_the_fields_allocate(cfg, boundary_density):
     """The estimate counts every field as allocated (the colliders' few hundred bytes aside): the density-estimate
     grid only with sim.boundary_density, adjoints for the differentiated fields only (not for the checkpoints)."""
-    world = WorldConfig.from_mapping({**cfg.__dict__, "sim": dict(cfg.sim, boundary_density=boundary_density),
-                                      "controlled_cup": cfg.controlled_cup.__dict__,
-                                      "target_cup": cfg.target_cup.__dict__})
+    world = WorldConfig.from_mapping(
+        {
+            **cfg.__dict__,
+            "sim": dict(cfg.sim, boundary_density=boundary_density),
+            "controlled_cup": cfg.controlled_cup.__dict__,
+            "target_cup": cfg.target_cup.__dict__,
+        }
+    )
     B, N, S, K = 3, 50, 40, 7
     sim = source_solver(world, B, N, S, K)
     try:
@@ -212,8 +226,18 @@ def test_cup_overlapping_the_target_is_rejected(dp):
 # ------------------------------------------------------------------------------ refinement
 def test_refinement_reduces_the_loss(cfg, dp):
     """Short-horizon scene: drive the soft spill (water in the walls' soft band) towards 0."""
-    res = refine_pours(cfg, P, goals=np.zeros(2), steps=3, lr=0.05, wrt=("theta", "hold"), spill_weight=1.0,
-                       horizon=HORIZON, progress=False, pour_sim=dp)
+    res = refine_pours(
+        cfg,
+        P,
+        goals=np.zeros(2),
+        steps=3,
+        lr=0.05,
+        wrt=("theta", "hold"),
+        spill_weight=1.0,
+        horizon=HORIZON,
+        progress=False,
+        pour_sim=dp,
+    )
     assert len(res.history) == 4 and not res.failed.any()
     assert np.all(res.loss_best < res.loss_initial), (res.loss_initial, res.loss_best)
     assert np.all(res.params[:, :2] == P[:, :2])  # x, y not in wrt: untouched
@@ -244,10 +268,13 @@ def _both(cfg, pours):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("pour_params", [
-    [0.31, 0.14, 1.8, 0.5],
-    [0.3137, 0.1433, 1.8, 0.5],  # off-grid: an earlier water model made the solvers disagree here (0.921 vs 0.993)
-])
+@pytest.mark.parametrize(
+    "pour_params",
+    [
+        [0.31, 0.14, 1.8, 0.5],
+        [0.3137, 0.1433, 1.8, 0.5],  # off-grid: an earlier water model made the solvers disagree here (0.921 vs 0.993)
+    ],
+)
 def test_forward_agrees_with_production_on_emptying_pours(cfg, pour_params):
     """Hard in-target fraction after a pour that empties the cup; tolerance 0.05 (7 of 140 particles).
     Measured: 1.000 vs 1.000 (grid-aligned pose)."""
@@ -262,16 +289,22 @@ def test_forward_agrees_with_production_on_partial_pours(cfg):
     analytic box normal: with production's central difference (sim.box_normals=central) its partial pours are
     0.05 fuller than the differentiable solver's, below all 16 production slots (BENCHMARKS.md, differentiable
     pours)."""
-    pours = np.array([[0.3137, 0.1433, 1.5, 0.5], [0.3137, 0.1433, 1.3, 1.0], [0.3037, 0.1633, 1.4, 0.3],
-                      [0.3437, 0.1633, 1.6, 0.2]])
+    pours = np.array(
+        [[0.3137, 0.1433, 1.5, 0.5], [0.3137, 0.1433, 1.3, 1.0], [0.3037, 0.1633, 1.4, 0.3], [0.3437, 0.1633, 1.6, 0.2]]
+    )
     prod, diff = _both(cfg, pours)
     assert np.all(np.abs(diff - prod) <= 0.05), (diff, prod)
 
 
 def test_the_central_difference_box_normal_is_refused_before_compute(cfg):
-    central = WorldConfig.from_mapping({**cfg.__dict__, "sim": dict(cfg.sim, box_normals="central"),
-                                        "controlled_cup": cfg.controlled_cup.__dict__,
-                                        "target_cup": cfg.target_cup.__dict__})
+    central = WorldConfig.from_mapping(
+        {
+            **cfg.__dict__,
+            "sim": dict(cfg.sim, box_normals="central"),
+            "controlled_cup": cfg.controlled_cup.__dict__,
+            "target_cup": cfg.target_cup.__dict__,
+        }
+    )
     with pytest.raises(ConfigError, match=r"sim.box_normals = 'central': the differentiable solver allows only"):
         DifferentiablePour(central, 1)
 
@@ -281,8 +314,14 @@ def test_viscosity_stretch_relaxation_and_boundary_density_act_in_the_differenti
     """The shared physics options reach the f64 solver: a viscous world with stretch relaxation and
     ghost wall mass pours differently from the default one, and its gradients are finite."""
     sim = dict(cfg.sim, viscosity=5.0, stretch_relax=0.02, boundary_density=True)
-    thick = WorldConfig.from_mapping({**cfg.__dict__, "sim": sim, "controlled_cup": cfg.controlled_cup.__dict__,
-                                      "target_cup": cfg.target_cup.__dict__})
+    thick = WorldConfig.from_mapping(
+        {
+            **cfg.__dict__,
+            "sim": sim,
+            "controlled_cup": cfg.controlled_cup.__dict__,
+            "target_cup": cfg.target_cup.__dict__,
+        }
+    )
     p = np.array([[0.31, 0.14, 1.6, 0.0]] * 2)
     d = DifferentiablePour(thick, 2, max_horizon=HORIZON, soft_width=SOFT)
     try:

@@ -68,19 +68,29 @@ def test_the_engine_holds_both_solvers_and_what_they_share():
 @pytest.mark.parametrize("path", _engine_modules(), ids=lambda p: p.name)
 def test_an_engine_module_imports_no_task_module(path):
     bad = engine_violations(path.read_text(encoding="utf-8"), _module(path))
-    assert not bad, (f"{path.relative_to(ROOT)} imports {bad}: the engine takes what it needs of the task as "
-                     "arguments (sim/diff.py builds the differentiable solver from a WorldConfig)")
+    assert not bad, (
+        f"{path.relative_to(ROOT)} imports {bad}: the engine takes what it needs of the task as "
+        "arguments (sim/diff.py builds the differentiable solver from a WorldConfig)"
+    )
 
 
-@pytest.mark.parametrize("source", ["from ..world import WorldConfig", "import sim.skills",
-                                    "from sim import execute", "from task import spill",
-                                    "def f():\n    from sim.diff import refine_pours\n"])
+@pytest.mark.parametrize(
+    "source",
+    [
+        "from ..world import WorldConfig",
+        "import sim.skills",
+        "from sim import execute",
+        "from task import spill",
+        "def f():\n    from sim.diff import refine_pours\n",
+    ],
+)
 def test_the_check_sees_a_task_import(source):
     """The rule itself: relative, absolute and function-level imports of the task are all caught, the engine's own
     and third-party ones pass."""
     assert engine_violations(source, "sim.engine.probe")
-    assert not engine_violations("from .colliders import Colliders\nimport sim.engine.mpm\nimport numpy\n"
-                                 "import safeio\n", "sim.engine.probe")
+    assert not engine_violations(
+        "from .colliders import Colliders\nimport sim.engine.mpm\nimport numpy\nimport safeio\n", "sim.engine.probe"
+    )
 
 
 def test_no_function_in_sim_is_longer_than_80_lines():

@@ -19,15 +19,18 @@ def _cup_env(x=0.3, y=0.12, theta=0.0):
 
 
 # ------------------------------------------------------------------------------ bad input
-@pytest.mark.parametrize("field,value,match", [
-    ("dx", -0.01, "sim.dx"),
-    ("domain", (0.6, 0.0), "sim.domain"),
-    ("n_envs", 0, "sim.n_envs"),
-    ("max_particles", 0, "sim.max_particles"),
-    ("arch", "tpu", "sim.arch"),
-    ("ppc", 5, "sim.ppc"),
-    ("sound_speed", 0.0, "sim.sound_speed"),
-])
+@pytest.mark.parametrize(
+    "field,value,match",
+    [
+        ("dx", -0.01, "sim.dx"),
+        ("domain", (0.6, 0.0), "sim.domain"),
+        ("n_envs", 0, "sim.n_envs"),
+        ("max_particles", 0, "sim.max_particles"),
+        ("arch", "tpu", "sim.arch"),
+        ("ppc", 5, "sim.ppc"),
+        ("sound_speed", 0.0, "sim.sound_speed"),
+    ],
+)
 def test_invalid_config_names_field(field, value, match):
     with pytest.raises(ConfigError, match=match):
         SimConfig(**{field: value})
@@ -72,6 +75,7 @@ def test_stretch_relaxation_removes_stored_stretch():
     """Water left stretched (J = 1.2, negative pressure) in a cup at rest: tension pulls it back by
     itself, but what stretch remains after 0.1 s (mean of max(J - 1, 0)) is less than half with a
     20 ms stretch relaxation (measured 0.0014 against 0.0032; CPU runs are bit reproducible)."""
+
     def stretch_after(relax: float) -> float:
         solver = MPMSolver(SimConfig(max_particles=512, stretch_relax=relax))
         solver.reset([_cup_env()])
@@ -90,9 +94,11 @@ def test_boundary_density_keeps_the_volume_of_water_at_rest():
     """8 cm of water at rest in a cup for 1 s. Hydrostatic compression at c = 12 m/s is g h / c^2 =
     0.5 %; without ghost mass in the walls the layers next to them pack denser and the surface
     sinks 7 % (measured 0.0747 m), with it 2 % (0.0783 m). Same particles, deterministic CPU runs."""
+
     def surface(boundary_density: bool) -> float:
-        solver = MPMSolver(SimConfig(domain=(0.6, 0.6), dx=0.01, dt=4e-4, max_particles=2048,
-                                     boundary_density=boundary_density))
+        solver = MPMSolver(
+            SimConfig(domain=(0.6, 0.6), dx=0.01, dt=4e-4, max_particles=2048, boundary_density=boundary_density)
+        )
         cup = Body("cup", pose=(0.30, 0.10, 0.0), shapes=open_box(0.10, 0.12, 0.02))
         solver.reset([EnvSpec(bodies=[cup], water=[WaterBlock((-0.05, 0.0), (0.05, 0.08), body="cup")])])
         solver.advance(1.0)
@@ -203,8 +209,9 @@ def test_box_normal_rule_acts_and_is_validated():
         kept[rule] = (_kept(solver), np.array(solver.positions(0)))
         solver.close()
     assert not np.array_equal(kept["analytic"][1], kept["central"][1])
-    with pytest.raises(ConfigError,
-                       match=r"sim.box_normals = 'sobel' is invalid: allowed one of \('analytic', 'central'\)"):
+    with pytest.raises(
+        ConfigError, match=r"sim.box_normals = 'sobel' is invalid: allowed one of \('analytic', 'central'\)"
+    ):
         SimConfig(box_normals="sobel")
 
 
@@ -242,8 +249,9 @@ def test_loaded_schedule_steers_exactly_like_per_tick_targets():
     """``load_schedule`` + ``track_tick`` (targets stay on the device) gives the same bits as ``track``
     with the targets sent every tick, and a tick outside the schedule is refused."""
     t = np.linspace(0, 1, 11)[:, None]
-    poses = np.stack([np.array([0.3, 0.12, 0.0]) + t * [0.05, 0.02, 0.6],
-                      np.array([0.25, 0.12, 0.0]) + t * [-0.03, 0.04, -0.4]])  # (2, 11, 3)
+    poses = np.stack(
+        [np.array([0.3, 0.12, 0.0]) + t * [0.05, 0.02, 0.6], np.array([0.25, 0.12, 0.0]) + t * [-0.03, 0.04, -0.4]]
+    )  # (2, 11, 3)
     runs = []
     for device_side in (False, True):
         solver = MPMSolver(SimConfig(n_envs=2, max_particles=512))
@@ -322,8 +330,9 @@ def test_split_substep_equals_the_whole_substep_bitwise(monkeypatch):
     for threshold in (10**9, 0):
         monkeypatch.setattr(mpm, "_SPLIT_ENV_PARTICLES", threshold)
         # on one thread (a pytest-xdist worker) the split path runs its two slabs one after the other
-        monkeypatch.setattr(MPMSolver, "_split",
-                            lambda self, t=threshold: t == 0 and self._n_running < max(self.threads, 2))
+        monkeypatch.setattr(
+            MPMSolver, "_split", lambda self, t=threshold: t == 0 and self._n_running < max(self.threads, 2)
+        )
         solver = MPMSolver(SimConfig(n_envs=3, max_particles=512))
         solver.reset([_cup_env(x=0.2 + 0.04 * b, theta=0.15 * b) for b in range(3)])
         solver.set_body_velocity(0, np.tile([0.15, 0.08], (3, 1)), np.linspace(-0.6, 0.9, 3))

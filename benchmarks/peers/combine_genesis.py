@@ -131,7 +131,7 @@ def main(argv=None) -> dict:
     all_runs = [r for by in runs.values() for rs in by.values() for r in rs]
     first = min(all_runs, key=lambda r: r["_file"]) if all_runs else {}
     res = {
-        "benchmark": "3D dam break (Martin & Moyce n^2 = 2 column across the tank), ours (sim.mpm.MPMSolver) vs "
+        "benchmark": "3D dam break (Martin & Moyce n^2 = 2 column across the tank), ours (sim.engine.mpm.MPMSolver) vs "
         "Genesis MPM Liquid; particle-substeps/s = B * particles * substeps / timed seconds; best of "
         "the rounds, solvers run alternately (ours, genesis, ours, genesis) in separate processes",
         "command": args.command,

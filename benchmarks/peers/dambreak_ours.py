@@ -1,4 +1,4 @@
-"""Our side of the Genesis peer benchmark: the 3D dam break of dambreak_common.py in sim.mpm.MPMSolver.
+"""Our side of the Genesis peer benchmark: the 3D dam break of dambreak_common.py in sim.engine.mpm.MPMSolver.
 
     python benchmarks/peers/dambreak_ours.py --dx 0.01 --envs 1 --threads 2 --out OUT.json
 
@@ -57,13 +57,13 @@ def main(argv=None) -> dict:
 
     load_start = list(os.getloadavg())
     if args.threads > 0:
-        # read by ti.init (Taichi's TI_<option> environment configuration) inside sim.backend.init_taichi
+        # read by ti.init (Taichi's TI_<option> environment configuration) inside sim.engine.backend.init_taichi
         os.environ["TI_CPU_MAX_NUM_THREADS"] = str(args.threads)
     import taichi as ti
 
-    from sim.config import SimConfig
-    from sim.mpm import MPMSolver
-    from sim.scene import EnvSpec, WaterBlock
+    from sim.engine.config import SimConfig
+    from sim.engine.mpm import MPMSolver
+    from sim.engine.scene import EnvSpec, WaterBlock
 
     dx, dt, B = args.dx, C.dt_for(args.dx), args.envs
     lo, hi = C.column_box(dx)

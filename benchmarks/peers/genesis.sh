@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Peer benchmark: our MLS-MPM water (sim.mpm.MPMSolver) against Genesis's MPM Liquid on the same 3D
+# Peer benchmark: our MLS-MPM water (sim.engine.mpm.MPMSolver) against Genesis's MPM Liquid on the same 3D
 # dam break (benchmarks/peers/dambreak_common.py), particle-substeps/s side by side plus the surge
 # front of both over time.
 #

@@ -45,8 +45,9 @@ def init_taichi(arch: str = "cpu", *, debug: bool = False, kernel_profiler: bool
             if arch == "gpu":
                 ti.reset()
                 _current = None
-                raise ConfigError("sim.arch = 'gpu' but no GPU backend (CUDA, Vulkan, Metal) is available: "
-                                  "use arch=cpu or arch=auto")
+                raise ConfigError(
+                    "sim.arch = 'gpu' but no GPU backend (CUDA, Vulkan, Metal) is available: use arch=cpu or arch=auto"
+                )
     got = ti.lang.impl.current_cfg().arch
     _current = "cpu" if got in (ti.x64, ti.arm64) else "gpu"
     return _current
@@ -67,5 +68,8 @@ def cpu_fingerprint() -> str:
     shipped dataset records the one that made it; tests/test_dynamics_shipped.py compares states made on
     another kind of CPU within a tolerance)."""
     keep = ("AVX", "AVX2", "FMA3", "AVX512F", "AVX512_SKX", "ASIMD", "SVE")
-    return " ".join([platform.machine()] + [k for k in keep if _CPU_FEATURES.get(k)]
-                    + [f"numpy {np.__version__}", "taichi " + ".".join(map(str, ti.__version__))])
+    return " ".join(
+        [platform.machine()]
+        + [k for k in keep if _CPU_FEATURES.get(k)]
+        + [f"numpy {np.__version__}", "taichi " + ".".join(map(str, ti.__version__))]
+    )

@@ -49,8 +49,9 @@ def to_frame(p, origin, cs):
 class Colliders:
     """Tank walls and kinematic bodies of B environments (module docstring); fields placed in ``fb``."""
 
-    def __init__(self, cfg: SimConfig, n_envs: int, max_bodies: int, max_shapes: int, fb: ti.FieldsBuilder,
-                 real=ti.f32):
+    def __init__(
+        self, cfg: SimConfig, n_envs: int, max_bodies: int, max_shapes: int, fb: ti.FieldsBuilder, real=ti.f32
+    ):
         self.cfg, self.real = cfg, real
         self.dim = dim = cfg.dim
         self.B, self.NB, self.NS = n_envs, max_bodies, max_shapes
@@ -62,9 +63,16 @@ class Colliders:
         self.body_radius = ti.field(ti.f32)  # bounding radius about the body origin (culling)
         self.body_first_shape = ti.field(ti.i32)  # shapes of body k: body_first_shape .. + body_nshapes - 1
         self.body_nshapes = ti.field(ti.i32)
-        fb.dense(ti.ij, (self.B, self.NB)).place(self.body_pos, self.body_vel, self.body_rot, self.body_omega,
-                                                 self.body_cs, self.body_radius, self.body_first_shape,
-                                                 self.body_nshapes)
+        fb.dense(ti.ij, (self.B, self.NB)).place(
+            self.body_pos,
+            self.body_vel,
+            self.body_rot,
+            self.body_omega,
+            self.body_cs,
+            self.body_radius,
+            self.body_first_shape,
+            self.body_nshapes,
+        )
         self.shape_kind = ti.field(ti.i32)
         self.shape_body = ti.field(ti.i32)
         self.shape_c = ti.Vector.field(2, ti.f32)
@@ -72,8 +80,9 @@ class Colliders:
         self.shape_size = ti.Vector.field(2, ti.f32)
         self.shape_lo = ti.Vector.field(2, ti.f32)  # the shape's bounds in its body's frame (culling)
         self.shape_hi = ti.Vector.field(2, ti.f32)
-        fb.dense(ti.ij, (self.B, self.NS)).place(self.shape_kind, self.shape_body, self.shape_c, self.shape_cs,
-                                                 self.shape_size, self.shape_lo, self.shape_hi)
+        fb.dense(ti.ij, (self.B, self.NS)).place(
+            self.shape_kind, self.shape_body, self.shape_c, self.shape_cs, self.shape_size, self.shape_lo, self.shape_hi
+        )
         #: (first shape, end) of each body when every environment holds the same bodies and the query unrolls its
         #: loop over their shapes at compile time (``fix_layout``); None: the loop reads the counts at run time
         self.fixed_layout: list[tuple[int, int]] | None = None
@@ -82,15 +91,23 @@ class Colliders:
     def empty_layout(self) -> dict[str, np.ndarray]:
         """Arrays for ``write``, no bodies yet (``pack_env`` fills each environment's)."""
         B, NB, NS = self.B, self.NB, self.NS
-        return {"shape_kind": np.zeros((B, NS), np.int32), "shape_body": np.zeros((B, NS), np.int32),
-                "shape_c": np.zeros((B, NS, 2), np.float32), "shape_cs": np.zeros((B, NS, 2), np.float32),
-                "shape_size": np.ones((B, NS, 2), np.float32), "shape_lo": np.zeros((B, NS, 2), np.float32),
-                "shape_hi": np.zeros((B, NS, 2), np.float32), "body_radius": np.zeros((B, NB), np.float32),
-                "body_first_shape": np.zeros((B, NB), np.int32), "body_nshapes": np.zeros((B, NB), np.int32),
-                "state": np.zeros((B, NB, 6), np.float32)}
+        return {
+            "shape_kind": np.zeros((B, NS), np.int32),
+            "shape_body": np.zeros((B, NS), np.int32),
+            "shape_c": np.zeros((B, NS, 2), np.float32),
+            "shape_cs": np.zeros((B, NS, 2), np.float32),
+            "shape_size": np.ones((B, NS, 2), np.float32),
+            "shape_lo": np.zeros((B, NS, 2), np.float32),
+            "shape_hi": np.zeros((B, NS, 2), np.float32),
+            "body_radius": np.zeros((B, NB), np.float32),
+            "body_first_shape": np.zeros((B, NB), np.int32),
+            "body_nshapes": np.zeros((B, NB), np.int32),
+            "state": np.zeros((B, NB, 6), np.float32),
+        }
 
-    def pack_env(self, out: dict[str, np.ndarray], b: int, bodies: Sequence[Body],
-                 placed_later: Sequence[int] = ()) -> None:
+    def pack_env(
+        self, out: dict[str, np.ndarray], b: int, bodies: Sequence[Body], placed_later: Sequence[int] = ()
+    ) -> None:
         """Lay environment b's bodies out in ``out`` (``empty_layout``): poses at rest, shapes body by body.
 
         Checks the counts against the capacities and every collider's outline at its pose against the domain
@@ -103,12 +120,15 @@ class Colliders:
             out["state"][b, k, :3] = body.pose
             out["body_first_shape"][b, k], out["body_nshapes"][b, k] = s, len(body.shapes)
             if body.shapes:
-                out["body_radius"][b, k] = max(np.linalg.norm(sh.center) + sh.bounding_radius()
-                                               for sh in body.shapes) + CULL_MARGIN
+                out["body_radius"][b, k] = (
+                    max(np.linalg.norm(sh.center) + sh.bounding_radius() for sh in body.shapes) + CULL_MARGIN
+                )
             for outline in body.world_outlines() if k not in placed_later else ():
                 if (outline.min(0) < -1e-6).any() or (outline.max(0) > domain + 1e-6).any():
-                    raise ConfigError(f"env {b}: collider of body {body.name!r} at pose {body.pose} "
-                                      f"leaves the domain [0, {list(self.cfg.domain)}] m")
+                    raise ConfigError(
+                        f"env {b}: collider of body {body.name!r} at pose {body.pose} "
+                        f"leaves the domain [0, {list(self.cfg.domain)}] m"
+                    )
             for sh in body.shapes:
                 if s >= self.NS:
                     raise ConfigError(f"env {b}: more than sim.max_shapes = {self.NS} collider shapes")
@@ -271,16 +291,20 @@ class Colliders:
                 if ti.static(self.cfg.box_normals == "analytic") and is_box:  # physics.box_sdf's
                     q = to_frame(p, o, cs_body) - self.shape_c[b, idx]
                     cs = self.shape_cs[b, idx]
-                    _, nl = box_sdf(ti.Vector([cs[0] * q[0] + cs[1] * q[1], -cs[1] * q[0] + cs[0] * q[1]]),
-                                    self.shape_size[b, idx], self.real)
+                    _, nl = box_sdf(
+                        ti.Vector([cs[0] * q[0] + cs[1] * q[1], -cs[1] * q[0] + cs[0] * q[1]]),
+                        self.shape_size[b, idx],
+                        self.real,
+                    )
                     n = rotate(rotate(nl, cs), cs_body)  # shape frame -> body -> world
                 else:  # capsule, ellipse (and boxes with box_normals=central): central difference over 0.1 dx
                     h = 0.1 * self.cfg.dx
                     for d in ti.static(range(2)):
                         e = ti.Vector.zero(self.real, 2)
                         e[d] = h
-                        n[d] = (self.shape_sdf(b, idx, to_frame(p + e, o, cs_body))
-                                - self.shape_sdf(b, idx, to_frame(p - e, o, cs_body)))
+                        n[d] = self.shape_sdf(b, idx, to_frame(p + e, o, cs_body)) - self.shape_sdf(
+                            b, idx, to_frame(p - e, o, cs_body)
+                        )
                     n = n / ti.max(n.norm(), 1e-12)
                 r = p - o
                 vel, w = frames.velocity(b, t, k)

@@ -116,16 +116,20 @@ class SimConfig:
         need(0.0 <= self.viscosity < math.inf, "viscosity", "a finite value >= 0 Pa s (water 1e-3, honey 2-10)")
         need(self.cfl <= 1.0, "cfl", "(0, 1]")
         k = round(self.ppc ** (1.0 / self.dim))
-        need(self.ppc >= 1 and k**self.dim == self.ppc, "ppc",
-             f"a perfect power k**{self.dim} (e.g. 1, 4, 9, 16 in 2D)")
+        need(
+            self.ppc >= 1 and k**self.dim == self.ppc, "ppc", f"a perfect power k**{self.dim} (e.g. 1, 4, 9, 16 in 2D)"
+        )
         for name in ("n_envs", "max_particles", "max_bodies", "max_shapes"):
             need(isinstance(getattr(self, name), int) and getattr(self, name) >= 1, name, "an integer >= 1")
         need(isinstance(self.wall_cells, int) and self.wall_cells >= 2, "wall_cells", "an integer >= 2")
         need(self.arch in ARCHES, "arch", f"one of {ARCHES}")
         need(self.box_normals in BOX_NORMALS, "box_normals", f"one of {BOX_NORMALS}")
         res = self.res
-        need(all(r >= 2 * self.wall_cells + 4 for r in res), "dx",
-             f"small enough for >= {2 * self.wall_cells + 4} cells per axis (domain {self.domain})")
+        need(
+            all(r >= 2 * self.wall_cells + 4 for r in res),
+            "dx",
+            f"small enough for >= {2 * self.wall_cells + 4} cells per axis (domain {self.domain})",
+        )
         if self.dt > self.dt_max * (1 + 1e-9):
             raise ConfigError(
                 f"sim.dt = {self.dt:g} s is above the stable bound for this grid and stiffness: allowed "
@@ -156,4 +160,3 @@ class SimConfig:
         d = asdict(self)
         d["domain"] = list(self.domain)
         return d
-

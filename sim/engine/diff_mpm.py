@@ -61,19 +61,31 @@ class DiffMPM:
     """``sc.n_envs`` environments of 2D water among ``bodies``; fields sized for ``max_substeps`` and
     ``checkpoint_every`` (module docstring)."""
 
-    def __init__(self, sc: SimConfig, bodies: Sequence[Body], n_particles: int, max_substeps: int,
-                 checkpoint_every: int, *, driven: Sequence[int] = (),
-                 regions: Sequence[tuple[Sequence[float], Sequence[float]]] = (), precision: str = "f64",
-                 arch: str = "cpu", soft_width: float | None = None):
+    def __init__(
+        self,
+        sc: SimConfig,
+        bodies: Sequence[Body],
+        n_particles: int,
+        max_substeps: int,
+        checkpoint_every: int,
+        *,
+        driven: Sequence[int] = (),
+        regions: Sequence[tuple[Sequence[float], Sequence[float]]] = (),
+        precision: str = "f64",
+        arch: str = "cpu",
+        soft_width: float | None = None,
+    ):
         """``driven``: indices into ``bodies`` of the bodies whose pose and velocity ``run_forward`` takes per
         substep (their poses here are not used); ``regions``: (lo, hi) corners of each region's box in its
         frame; ``soft_width``: m over which a region's inside weight ramps (default dx / 2)."""
         if sc.dim != 2:
             raise ConfigError(f"sim.dim = {sc.dim}: the differentiable solver is 2D only")
         if sc.box_normals != "analytic":
-            raise ConfigError(f"sim.box_normals = {sc.box_normals!r}: the differentiable solver allows only "
-                              "'analytic' (a central-difference normal makes its rollouts non-smooth at the "
-                              "finite-difference scale; BENCHMARKS.md, differentiable pours)")
+            raise ConfigError(
+                f"sim.box_normals = {sc.box_normals!r}: the differentiable solver allows only "
+                "'analytic' (a central-difference normal makes its rollouts non-smooth at the "
+                "finite-difference scale; BENCHMARKS.md, differentiable pours)"
+            )
         self.driven = tuple(int(k) for k in driven)
         if any(not 0 <= k < len(bodies) for k in self.driven) or len(set(self.driven)) < len(self.driven):
             raise ConfigError(f"driven = {list(driven)}: allowed distinct indices into the {len(bodies)} bodies")
@@ -143,8 +155,9 @@ class DiffMPM:
     def _place_geometry(self, bodies: list[Body]) -> None:
         """The colliders (not differentiated: a tree of their own), every environment's the same."""
         geo = ti.FieldsBuilder()
-        self.colliders = Colliders(self.sc, self.B, max(len(bodies), 1), max(sum(len(b.shapes) for b in bodies), 1),
-                                   geo, self.real)
+        self.colliders = Colliders(
+            self.sc, self.B, max(len(bodies), 1), max(sum(len(b.shapes) for b in bodies), 1), geo, self.real
+        )
         self._geo_tree = geo.finalize()
         layout = self.colliders.empty_layout()
         for b in range(self.B):
@@ -154,8 +167,18 @@ class DiffMPM:
 
     # ================================================================== memory
     @staticmethod
-    def memory_bytes(n_envs: int, n_particles: int, substeps: int, checkpoint_every: int, res: tuple[int, int],
-                     precision: str = "f64", *, boundary_density: bool, n_driven: int = 1, n_regions: int = 2) -> int:
+    def memory_bytes(
+        n_envs: int,
+        n_particles: int,
+        substeps: int,
+        checkpoint_every: int,
+        res: tuple[int, int],
+        precision: str = "f64",
+        *,
+        boundary_density: bool,
+        n_driven: int = 1,
+        n_regions: int = 2,
+    ) -> int:
         """Bytes of Taichi fields plus the host-side trajectory arrays for these sizes (the colliders, a few
         hundred bytes, aside).
 
@@ -233,12 +256,24 @@ class DiffMPM:
         ti.loop_config(block_dim=1)
         for b in range(self.B):
             for p in range(self.n_part[b]):
-                self.stencil.p2g(self.grid_v_in, self.grid_m, b, self.x[s, b, p], self.v[s, b, p], self.C[s, b, p],
-                       self.J[s, b, p], False, False, 0, 0)
+                self.stencil.p2g(
+                    self.grid_v_in,
+                    self.grid_m,
+                    b,
+                    self.x[s, b, p],
+                    self.v[s, b, p],
+                    self.C[s, b, p],
+                    self.J[s, b, p],
+                    False,
+                    False,
+                    0,
+                    0,
+                )
         # 2. grid update: momentum to velocity, gravity, colliders
         for I in ti.grouped(self.grid_m):
-            self.stencil.update_node(self.grid_v_in, self.grid_m, self.grid_v_out, self.grid_rho, I, self.colliders,
-                                     self, t)
+            self.stencil.update_node(
+                self.grid_v_in, self.grid_m, self.grid_v_out, self.grid_rho, I, self.colliders, self, t
+            )
         # 3. grid to particle, advection, collider projection, position clamp, volume ratio
         ti.loop_config(block_dim=1)
         for b in range(self.B):
@@ -260,8 +295,12 @@ class DiffMPM:
         q = ti.Vector([cs * d[0] + sn * d[1], -sn * d[0] + cs * d[1]])
         lo, hi = ti.static(self.regions[r])
         inv_w = ti.static(1.0 / self.soft_width)
-        return (_ramp((q[0] - lo[0]) * inv_w) * _ramp((hi[0] - q[0]) * inv_w)
-                * _ramp((q[1] - lo[1]) * inv_w) * _ramp((hi[1] - q[1]) * inv_w))
+        return (
+            _ramp((q[0] - lo[0]) * inv_w)
+            * _ramp((hi[0] - q[0]) * inv_w)
+            * _ramp((q[1] - lo[1]) * inv_w)
+            * _ramp((hi[1] - q[1]) * inv_w)
+        )
 
     @ti.kernel
     def outcome(self, s: ti.i32):
@@ -320,8 +359,9 @@ class DiffMPM:
         """(first global substep, length) of each checkpoint segment."""
         return [(t0, min(self.K, substeps - t0)) for t0 in range(0, substeps, self.K)]
 
-    def run_forward(self, x0: np.ndarray, n_part: np.ndarray, poses: np.ndarray, vels: np.ndarray,
-                    region_poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def run_forward(
+        self, x0: np.ndarray, n_part: np.ndarray, poses: np.ndarray, vels: np.ndarray, region_poses: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Simulate ``poses.shape[1]`` substeps; returns the soft fractions (B, regions) and the final x (B, N, 2).
 
         ``poses``, ``vels``: (B, S, driven, 3) each driven body's pose (x, y, theta) and velocity (vx, vy,

@@ -24,8 +24,10 @@ def cos_sin(angles: np.ndarray, portable: bool = False) -> tuple[np.ndarray, np.
     if not portable:
         return np.cos(a), np.sin(a)
     flat = a.ravel().tolist()
-    return (np.fromiter(map(math.cos, flat), float, len(flat)).reshape(a.shape),
-            np.fromiter(map(math.sin, flat), float, len(flat)).reshape(a.shape))
+    return (
+        np.fromiter(map(math.cos, flat), float, len(flat)).reshape(a.shape),
+        np.fromiter(map(math.sin, flat), float, len(flat)).reshape(a.shape),
+    )
 
 
 def min_jerk(tau: np.ndarray | float) -> np.ndarray:
@@ -43,8 +45,14 @@ def min_jerk_duration(distance: np.ndarray | float, peak_speed: float, min_time:
     return np.maximum(MIN_JERK_PEAK * np.asarray(distance, float) / peak_speed, min_time)
 
 
-def follow(solver, body: int, pose_at: Callable[[float], np.ndarray], duration: float,
-           control_dt: float = 0.01, on_control: Callable[[float], None] | None = None) -> None:
+def follow(
+    solver,
+    body: int,
+    pose_at: Callable[[float], np.ndarray],
+    duration: float,
+    control_dt: float = 0.01,
+    on_control: Callable[[float], None] | None = None,
+) -> None:
     """Drive ``body`` in every environment along ``pose_at(t) -> (B, 3)`` for ``duration`` seconds.
 
     Each control step sets the body velocity that reaches the next target pose exactly (linear and

@@ -25,7 +25,6 @@ The transfers, the grid update and the collider query are Taichi functions share
 differentiable solver (``sim.engine.stencil``, ``sim.engine.colliders``); this module schedules them.
 """
 
-
 import logging
 from typing import Sequence
 
@@ -188,11 +187,15 @@ class MPMSolver:
         rng = np.random.default_rng([cfg.seed, slot])
         pts = sample_water(spec, cfg.dx, cfg.ppc, rng, cfg.jitter) if self.dim == 2 else _sample_nd(spec, cfg, rng)
         if len(pts) > self.N:
-            raise ConfigError(f"env {b}: {len(pts)} particles > sim.max_particles = {self.N}; raise "
-                              f"sim.max_particles or use less water / a coarser sim.dx")
+            raise ConfigError(
+                f"env {b}: {len(pts)} particles > sim.max_particles = {self.N}; raise "
+                f"sim.max_particles or use less water / a coarser sim.dx"
+            )
         if len(pts) and (pts.min(0) < lo_w).any() or len(pts) and (pts.max(0) > np.asarray(hi_w)).any():
-            raise ConfigError(f"env {b}: water outside the tank interior [{lo_w:g}, {hi_w}] m "
-                              f"(particles span {pts.min(0)} .. {pts.max(0)})")
+            raise ConfigError(
+                f"env {b}: water outside the tank interior [{lo_w:g}, {hi_w}] m "
+                f"(particles span {pts.min(0)} .. {pts.max(0)})"
+            )
         return pts
 
     def _push_bodies(self) -> None:
@@ -257,9 +260,11 @@ class MPMSolver:
             if ti.static(self.dim == 2):
                 for d in ti.static(range(2)):
                     self.colliders.body_vel[b, k][d] = ti.cast(
-                        (targets[b, tick, d] - ti.cast(self.colliders.body_pos[b, k][d], ti.f64)) / h, ti.f32)
+                        (targets[b, tick, d] - ti.cast(self.colliders.body_pos[b, k][d], ti.f64)) / h, ti.f32
+                    )
             self.colliders.body_omega[b, k] = ti.cast(
-                (targets[b, tick, 2] - ti.cast(self.colliders.body_rot[b, k], ti.f64)) / h, ti.f32)
+                (targets[b, tick, 2] - ti.cast(self.colliders.body_rot[b, k], ti.f64)) / h, ti.f32
+            )
 
     def _pull_bodies(self, velocities: bool = True) -> None:
         """Refresh the host copy; velocities too before a push (``track`` writes them on the device)."""
@@ -345,8 +350,12 @@ class MPMSolver:
         cup's), and fractions of the water must not add up to more than all of it."""
         m = len(bodies)
         out = np.zeros((self.B, m), np.int32)
-        self._count_regions(np.asarray(bodies, np.int32), np.asarray(lo, np.float32).reshape(m, 2),
-                            np.asarray(hi, np.float32).reshape(m, 2), out)
+        self._count_regions(
+            np.asarray(bodies, np.int32),
+            np.asarray(lo, np.float32).reshape(m, 2),
+            np.asarray(hi, np.float32).reshape(m, 2),
+            out,
+        )
         return out
 
     def stability(self) -> dict[str, np.ndarray]:
@@ -361,8 +370,14 @@ class MPMSolver:
         for b in np.flatnonzero(st["unstable"]):
             if b not in self._reported:
                 self._reported.add(int(b))
-                log.warning("sim environment %d went unstable at t=%.3f s (nan=%s, pinned particles=%d); "
-                            "its results are invalid", b, self.time, bool(st["nan"][b]), int(st["pinned"][b]))
+                log.warning(
+                    "sim environment %d went unstable at t=%.3f s (nan=%s, pinned particles=%d); "
+                    "its results are invalid",
+                    b,
+                    self.time,
+                    bool(st["nan"][b]),
+                    int(st["pinned"][b]),
+                )
         return st["unstable"]
 
     def close(self) -> None:
@@ -377,8 +392,19 @@ class MPMSolver:
     def _p2g(self, b, p, r0, r1, rows: ti.template()):
         """Scatter particle p's mass and momentum to its 3^dim stencil; returns the stencil's first node.
         With ``rows`` only the stencil's nodes in grid rows r0 .. r1 - 1 (the split path's slab)."""
-        return self.stencil.p2g(self.grid_v, self.grid_m, b, self.x[b, p], self.v[b, p], self.C[b, p], self.J[b, p],
-                                self.serial_p2g, rows, r0, r1)
+        return self.stencil.p2g(
+            self.grid_v,
+            self.grid_m,
+            b,
+            self.x[b, p],
+            self.v[b, p],
+            self.C[b, p],
+            self.J[b, p],
+            self.serial_p2g,
+            rows,
+            r0,
+            r1,
+        )
 
     @ti.kernel
     def _full_boxes(self):
@@ -395,8 +421,9 @@ class MPMSolver:
     @ti.func
     def _update_node(self, I):
         """Momentum to velocity, gravity, collider boundary condition at grid node I = (b, i, j[, k]), in place."""
-        self.stencil.update_node(self.grid_v, self.grid_m, self.grid_v, self.grid_m, I, self.colliders,
-                                 self.colliders, 0)
+        self.stencil.update_node(
+            self.grid_v, self.grid_m, self.grid_v, self.grid_m, I, self.colliders, self.colliders, 0
+        )
 
     @ti.func
     def _for_active_nodes(self, b, i, fn: ti.template()):
@@ -622,8 +649,9 @@ class MPMSolver:
         self.J[b, p] = J
 
     @ti.kernel
-    def _count_regions(self, bodies: ti.types.ndarray(), lo: ti.types.ndarray(), hi: ti.types.ndarray(),
-                       out: ti.types.ndarray()):
+    def _count_regions(
+        self, bodies: ti.types.ndarray(), lo: ti.types.ndarray(), hi: ti.types.ndarray(), out: ti.types.ndarray()
+    ):
         for b, p in ti.ndrange(self.B, self.N):
             if p < self.n_part[b]:
                 counted = 0
@@ -645,8 +673,9 @@ def _sample_nd(spec: EnvSpec, cfg: SimConfig, rng: np.random.Generator) -> np.nd
     out = []
     for blk in spec.water:
         axes = [np.arange(max(1, int(round((b1 - b0) / h)))) for b0, b1 in zip(blk.lo, blk.hi)]
-        grids = np.meshgrid(*[(a + 0.5) * (b1 - b0) / len(a) + b0 for a, b0, b1 in zip(axes, blk.lo, blk.hi)],
-                            indexing="ij")
+        grids = np.meshgrid(
+            *[(a + 0.5) * (b1 - b0) / len(a) + b0 for a, b0, b1 in zip(axes, blk.lo, blk.hi)], indexing="ij"
+        )
         pts = np.stack([g.ravel() for g in grids], 1)
         out.append(pts + rng.uniform(-cfg.jitter * h, cfg.jitter * h, size=pts.shape))
     return np.concatenate(out, 0).astype(np.float32) if out else np.zeros((0, cfg.dim), np.float32)

@@ -25,8 +25,9 @@ def bspline_weights(fx):
 
 
 @ti.func
-def affine_momentum(J, C, p_mass, p_vol, bulk, viscosity: ti.template(), dt, inv_dx, real: ti.template(),
-                    dim: ti.template()):
+def affine_momentum(
+    J, C, p_mass, p_vol, bulk, viscosity: ti.template(), dt, inv_dx, real: ti.template(), dim: ti.template()
+):
     """MLS-MPM's affine term of the particle-to-grid transfer: -dt V_p M^-1 sigma + m_p C.
 
     M^-1 = 4 / dx^2 for quadratic B-splines. The pressure part is written exactly as mpm88 does
@@ -41,8 +42,17 @@ def affine_momentum(J, C, p_mass, p_vol, bulk, viscosity: ti.template(), dt, inv
 
 
 @ti.func
-def update_volume_ratio(J, trace_C, mass_near, dt, rest_mass, relax_rate: ti.template(),
-                        volume_correction: ti.template(), tension: ti.template(), stretch_rate: ti.template()):
+def update_volume_ratio(
+    J,
+    trace_C,
+    mass_near,
+    dt,
+    rest_mass,
+    relax_rate: ti.template(),
+    volume_correction: ti.template(),
+    tension: ti.template(),
+    stretch_rate: ti.template(),
+):
     """Advect J with the velocity divergence, then (optionally) the two corrections, in this order.
 
     ``volume_correction``: J relaxes at ``relax_rate`` (= min(dt / volume_relax, 1)) towards the

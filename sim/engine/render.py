@@ -66,8 +66,15 @@ def save_png(solver, path: str | Path, env: int = 0, title: str = "") -> Path:
     return path
 
 
-def save_gif(snaps: Sequence[dict], spec: EnvSpec, domain: Sequence[float], wall: float, path: str | Path,
-             fps: int = 20, titles: Sequence[str] | None = None) -> Path:
+def save_gif(
+    snaps: Sequence[dict],
+    spec: EnvSpec,
+    domain: Sequence[float],
+    wall: float,
+    path: str | Path,
+    fps: int = 20,
+    titles: Sequence[str] | None = None,
+) -> Path:
     """Write snapshots (from :func:`snapshot`) of one environment as an animated GIF."""
     import imageio.v2 as imageio
 

@@ -71,10 +71,12 @@ class Shape:
             h, r = self.size
             t1 = np.linspace(-np.pi / 2, np.pi / 2, n // 2)
             t2 = np.linspace(np.pi / 2, 3 * np.pi / 2, n // 2)
-            pts = np.concatenate([
-                np.stack([h + r * np.cos(t1), r * np.sin(t1)], 1),
-                np.stack([-h + r * np.cos(t2), r * np.sin(t2)], 1),
-            ])
+            pts = np.concatenate(
+                [
+                    np.stack([h + r * np.cos(t1), r * np.sin(t1)], 1),
+                    np.stack([-h + r * np.cos(t2), r * np.sin(t2)], 1),
+                ]
+            )
         c, s = math.cos(self.angle), math.sin(self.angle)
         rot = np.array([[c, -s], [s, c]])
         return pts @ rot.T + np.asarray(self.center)
@@ -145,8 +147,9 @@ def sample_water(spec: EnvSpec, dx: float, ppc: int, rng: np.random.Generator, j
     for blk in spec.water:
         (x0, y0), (x1, y1) = blk.lo, blk.hi
         nx, ny = max(1, int(round((x1 - x0) / h))), max(1, int(round((y1 - y0) / h)))
-        gx, gy = np.meshgrid((np.arange(nx) + 0.5) * (x1 - x0) / nx + x0,
-                             (np.arange(ny) + 0.5) * (y1 - y0) / ny + y0, indexing="ij")
+        gx, gy = np.meshgrid(
+            (np.arange(nx) + 0.5) * (x1 - x0) / nx + x0, (np.arange(ny) + 0.5) * (y1 - y0) / ny + y0, indexing="ij"
+        )
         pts = np.stack([gx.ravel(), gy.ravel()], 1)
         if jitter > 0:
             pts += rng.uniform(-jitter * h, jitter * h, size=pts.shape)

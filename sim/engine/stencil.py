@@ -54,8 +54,20 @@ class Stencil:
         return weight
 
     @ti.func
-    def p2g(self, grid_v: ti.template(), grid_m: ti.template(), b, xp, vp, Cp, Jp, serial: ti.template(),
-            rows: ti.template(), r0, r1):
+    def p2g(
+        self,
+        grid_v: ti.template(),
+        grid_m: ti.template(),
+        b,
+        xp,
+        vp,
+        Cp,
+        Jp,
+        serial: ti.template(),
+        rows: ti.template(),
+        r0,
+        r1,
+    ):
         """Scatter the mass and momentum of a particle of environment b (position, velocity, affine field,
         volume ratio) to its 3^dim stencil; returns the stencil's first node.
 
@@ -68,8 +80,9 @@ class Stencil:
         base = ti.cast(Xp - 0.5, ti.i32)
         fx = Xp - base
         w = bspline_weights(fx)
-        affine = affine_momentum(Jp, Cp, self.p_mass, self.p_vol, self.bulk, self.cfg.viscosity, dt, inv_dx,
-                                 self.real, self.dim)
+        affine = affine_momentum(
+            Jp, Cp, self.p_mass, self.p_vol, self.bulk, self.cfg.viscosity, dt, inv_dx, self.real, self.dim
+        )
         mv = self.p_mass * vp
         # factored: mv + affine (offset - fx) dx = c0 + affine offset dx, the second term a sum of the columns
         # of affine dx (offset_d in {0, 1, 2}): additions only, shared between the nodes (unfactored, c0 and
@@ -99,8 +112,17 @@ class Stencil:
         return base
 
     @ti.func
-    def update_node(self, grid_v: ti.template(), grid_m: ti.template(), v_out: ti.template(), m_out: ti.template(),
-                    I, colliders: ti.template(), frames: ti.template(), t):
+    def update_node(
+        self,
+        grid_v: ti.template(),
+        grid_m: ti.template(),
+        v_out: ti.template(),
+        m_out: ti.template(),
+        I,
+        colliders: ti.template(),
+        frames: ti.template(),
+        t,
+    ):
         """Grid node I = (b, i, j[, k]): momentum to velocity, gravity, the colliders' boundary rule, into
         ``v_out``; with ``sim.boundary_density`` the ghost mass into ``m_out`` (the density estimate's mass).
         ``frames``, ``t``: the bodies' frames (``Colliders.contact``)."""
@@ -169,9 +191,17 @@ class Stencil:
     @ti.func
     def volume_ratio(self, J, new_C, mass_near):
         """The particle's volume ratio after this substep (``physics.update_volume_ratio``)."""
-        return update_volume_ratio(J, new_C.trace(), mass_near, self.cfg.dt, ti.static(self.cfg.ppc * self.p_mass),
-                                   ti.static(min(self.cfg.dt / self.cfg.volume_relax, 1.0)),
-                                   self.cfg.volume_correction, self.cfg.tension, self.stretch_rate)
+        return update_volume_ratio(
+            J,
+            new_C.trace(),
+            mass_near,
+            self.cfg.dt,
+            ti.static(self.cfg.ppc * self.p_mass),
+            ti.static(min(self.cfg.dt / self.cfg.volume_relax, 1.0)),
+            self.cfg.volume_correction,
+            self.cfg.tension,
+            self.stretch_rate,
+        )
 
     @ti.func
     def keep_on_grid(self, xn):
