@@ -58,7 +58,7 @@ import math
 import os
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import torch
@@ -553,13 +553,9 @@ def refine_pours(
         for j, name in zip(cols, wrt):
             grad[:, j] = out.gradients[name] * span[j]
         bad = out.nan | ~np.isfinite(out.value) | ~np.isfinite(grad).all(1)
-        new_fail = bad & ~failed
-        for b in np.flatnonzero(new_fail):
+        for b in np.flatnonzero(bad & ~failed):
             log.warning(
-                "refine_pours: env %d went NaN at step %d (params %s); keeping its initial parameters",
-                b,
-                k,
-                p[b].tolist(),
+                "refine_pours: env %d went NaN at step %d (params %s); its initial parameters stay", b, k, p[b].tolist()
             )
         failed |= bad
         if k == 0:
@@ -567,19 +563,7 @@ def refine_pours(
         ok = ~failed & ~out.stuck & (out.value < best_loss)
         best_loss[ok], best_p[ok] = out.value[ok], p[ok]
         best_t[ok], best_s[ok] = out.in_target_soft[ok], out.spill_soft[ok]
-        history.append(
-            {
-                "step": k,
-                "params": p.copy(),
-                "loss": out.value.copy(),
-                "in_target": out.in_target_soft.copy(),
-                "in_target_hard": out.in_target.copy(),
-                "spill": out.spill_soft.copy(),
-                "grad": grad.copy(),
-                "stuck": out.stuck.copy(),
-                "failed": failed.copy(),
-            }
-        )
+        history.append(_history_row(k, p, out, grad, failed))
         if progress:
             it.set_postfix(loss=f"{np.nanmean(np.where(failed, np.nan, out.value)):.4f}")
         if k < steps:  # the last evaluation only scores the final step
@@ -590,17 +574,22 @@ def refine_pours(
     best_p[failed] = p0[failed]
     if pour_sim is None:
         sim.close()
-    return RefineResult(
-        params=best_p,
-        initial_params=p0,
-        loss_initial=loss0,
-        loss_best=best_loss,
-        in_target_best=best_t,
-        spill_best=best_s,
-        failed=failed,
-        history=history,
-        wall_seconds=time.perf_counter() - t_start,
-    )
+    return RefineResult(best_p, p0, loss0, best_loss, best_t, best_s, failed, history, time.perf_counter() - t_start)
+
+
+def _history_row(k: int, p: np.ndarray, out: Any, grad: np.ndarray, failed: np.ndarray) -> dict:
+    """Step ``k``'s record in :attr:`RefineResult.history` (copies: the arrays change at the next step)."""
+    return {
+        "step": k,
+        "params": p.copy(),
+        "loss": out.value.copy(),
+        "in_target": out.in_target_soft.copy(),
+        "in_target_hard": out.in_target.copy(),
+        "spill": out.spill_soft.copy(),
+        "grad": grad.copy(),
+        "stuck": out.stuck.copy(),
+        "failed": failed.copy(),
+    }
 
 
 # ---------------------------------------------------------------------------------- CLI
