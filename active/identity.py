@@ -3,7 +3,8 @@
 A run directory may only be extended by the configuration that wrote it. Its ``state.pt`` files,
 calibration set and model-alone rows record :func:`config_digest`; a rerun with another digest is
 refused, naming the fields that differ (:func:`config_differences`). The digest covers
-:data:`RUN_FORMAT_VERSION`, so files written by another version of the run format are never reused.
+:data:`RUN_FORMAT_VERSION` and the solver's ``NUMERICS_REVISION``, so files written by another version of the
+run format, or simulated with other arithmetic, are never reused.
 """
 
 from __future__ import annotations
@@ -11,6 +12,8 @@ from __future__ import annotations
 import hashlib
 import json
 from typing import Any, Mapping
+
+from sim.engine.config import NUMERICS_REVISION
 
 from .io import as_json
 
@@ -37,6 +40,7 @@ def comparable_config(cfg: Mapping[str, Any]) -> dict:
         c.pop(k, None)
     c.get("planner", {}).pop("workers", None)  # where plans are computed, not what they are
     c["run_format_version"] = RUN_FORMAT_VERSION
+    c["sim_numerics_revision"] = NUMERICS_REVISION  # the solver's rounding: another revision's pours differ
     return c
 
 

@@ -330,7 +330,7 @@ class MethodRun:
                 n=exp.candidates,
                 beta=beta,
                 d_max=exp.d_max,
-                seed=derive_seed(ctx.seed, self.method, "plan", it, c0 + j),
+                seed=derive_seed(ctx.seed, "plan", it, c0 + j),
             )
             for j, prob in enumerate(chunk)
         ]
@@ -351,7 +351,7 @@ class MethodRun:
                 chunk[j].start,
                 chunk[j].goal,
                 d_max=exp.d_max,
-                seed=derive_seed(ctx.seed, self.method, "fallback-plan", it, c0 + j),
+                seed=derive_seed(ctx.seed, "fallback-plan", it, c0 + j),
             )
             for j in idx
         ]
@@ -365,7 +365,8 @@ class MethodRun:
 
     def _choose(self, prob: Problem, cands: Any, it: int, k: int, reference: torch.Tensor | None = None):
         ctx, exp = self.ctx, self.ctx.exp
-        rng = np.random.default_rng(derive_seed(ctx.seed, self.method, "choose", it, k))
+        # common random numbers: the stream is the same for every method, so methods differ only by their choice
+        rng = np.random.default_rng(derive_seed(ctx.seed, "choose", it, k))
 
         def random_actions() -> np.ndarray:
             return self.sampler.sample(exp.random_actions_length, rng)

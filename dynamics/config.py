@@ -24,6 +24,7 @@ from typing import Any, Mapping
 
 import yaml
 
+from sim.engine.config import NUMERICS_REVISION
 from sim.world import DEFAULT_CONFIG, WorldConfig
 
 #: bump when the dataset layout, the generator's semantics or what :func:`data_hash` covers change (a cached or
@@ -350,7 +351,9 @@ def source_world(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
       planning problems), so a world that poses other goals keeps its data;
     * where the solver runs (``sim.arch``): CPU and GPU make the same data within ``benchmarks.check_arch``'s
       tolerances, and a GPU run uses the CPU-made shipped data instead of simulating it again;
-    * ``sim.n_envs``: how many environments one solver call runs at once, which ``data.batch_size`` sets.
+    * ``sim.n_envs``: how many environments one solver call runs at once, which ``data.batch_size`` sets;
+
+    plus the solver's arithmetic (``sim.engine.config.NUMERICS_REVISION``), which rounds every pour.
     """
     world = world_config(data, world_cfg)
     out = world_dict(data, world)
@@ -360,6 +363,7 @@ def source_world(data: DataConfig, world_cfg: Any = None) -> dict[str, Any]:
     for k in ("arch", "n_envs"):
         solver.pop(k)
     out["sim"] = json.loads(json.dumps(solver, default=_plain))
+    out["sim"]["numerics_revision"] = NUMERICS_REVISION
     return out
 
 

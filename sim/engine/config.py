@@ -11,6 +11,11 @@ from dataclasses import asdict, dataclass, fields
 from typing import Any, Mapping
 
 ARCHES = ("cpu", "gpu", "auto")
+#: the solver's arithmetic: bumped when a change rounds a pour differently with the same configuration (revision 2:
+#: the 2D particle-grid transfers run factored, ``sim.engine.mpm._FACTORED_TRANSFERS``). What stores simulated bits
+#: keys on it: the source data's hash (``dynamics.config.source_world``) and a run's identity
+#: (``active.identity.comparable_config``), so data and runs of another revision are never mixed with this one's.
+NUMERICS_REVISION = 2
 BOX_NORMALS = ("analytic", "central")
 
 

@@ -48,11 +48,11 @@ _SPLIT_ENV_PARTICLES = 6000
 #: dimensions whose particle-grid transfers run factored: the stencil's per-node affine terms (mv + A (o - fx) dx to
 #: the grid, sum w g_v (o - fx)^T back) as sums over the offset o's digits, additions instead of matrix products.
 #: The same equations, rounded differently (``sim.engine.stencil``): 1.45-1.95x the one-task speed of the 3D dam
-#: break (16,000-128,000 particles, 27-node stencil). 2D keeps the direct form: the shipped source data and every
-#: stored result are its bits, and regenerating them is what a switch costs (factored, the default world's scene runs
-#: 1.11-1.36x faster at B = 32). Both: ``benchmarks.sim_split``, BENCHMARKS.md, "factored transfers, 3D and 2D". Read
-#: when a solver is built (``benchmarks.sim_split`` sets it before building one).
-_FACTORED_TRANSFERS = (3,)
+#: break (16,000-128,000 particles, 27-node stencil), 1.11-1.36x on the default world's 2D scene at B = 32
+#: (``benchmarks.sim_split``, BENCHMARKS.md, "factored transfers, 3D and 2D"). Changing it changes every pour's
+#: bits: bump ``sim.engine.config.NUMERICS_REVISION`` and regenerate the shipped data (``python -m dynamics.shipped``).
+#: Read when a solver is built (``benchmarks.sim_split`` sets it before building one).
+_FACTORED_TRANSFERS = (2, 3)
 
 
 @ti.func
