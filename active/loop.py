@@ -40,8 +40,9 @@ from .experiment import ExperimentConfig
 from .identity import RUN_FORMAT, RUN_FORMAT_VERSION, config_digest
 from .io import file_sha256, save_checked, save_torch, write_csv
 from .labels import label_transitions, stack_steps
-from .methods import Choice, RandomPlan, build_method
+from .methods import Choice, OracleBound, RandomPlan, build_method
 from .needs import OUTCOME_FIELDS, PlanNeed, SimNeed, execute_needs, problem_outcomes
+from .oracle import best, score_candidates
 from .refine import refine_plans
 from .rundir import check_checkpoint, load_mde_checkpoint, load_state
 from .seeds import derive_seed
@@ -250,16 +251,20 @@ class MethodRun:
             chunk = problems[c0 : c0 + exp.refit_every]
             tp = time.perf_counter()
             cand_sets = yield from self._plan_chunk(chunk, plan_mde, it, c0, beta)  # one planning batch per chunk
-            reference = _candidate_steps(cand_sets)
-            choices = [
-                self._choose(prob, cands, it, c0 + j, reference)
-                for j, (prob, cands) in enumerate(zip(chunk, cand_sets))
-            ]
-            choices = yield from self._plan_fallbacks(chunk, choices, it, c0)
-            t_plan += time.perf_counter() - tp
-            ts = time.perf_counter()
-            results = yield SimNeed(chunk, [c.actions for c in choices], exp.refit_every)
-            t_sim += time.perf_counter() - ts
+            if isinstance(self.spec, OracleBound):  # chooses after executing every candidate
+                choices, results, t = yield from self._oracle_chunk(chunk, cand_sets, it, c0)
+                t_plan, t_sim, t_fit = t_plan + t["plan"], t_sim + t["sim"], t_fit + t["fit"]
+            else:
+                reference = _candidate_steps(cand_sets)
+                choices = [
+                    self._choose(prob, cands, it, c0 + j, reference)
+                    for j, (prob, cands) in enumerate(zip(chunk, cand_sets))
+                ]
+                choices = yield from self._plan_fallbacks(chunk, choices, it, c0)
+                t_plan += time.perf_counter() - tp
+                ts = time.perf_counter()
+                results = yield SimNeed(chunk, [c.actions for c in choices], exp.refit_every)
+                t_sim += time.perf_counter() - ts
             for prob, ch, r in zip(chunk, choices, results):
                 fallbacks += ch.source.startswith("fallback")  # no admitted candidate (either fallback)
                 reached += bool(r.goal_reached)
@@ -362,6 +367,83 @@ class MethodRun:
             if res.found:
                 choices[j] = Choice(np.asarray(res.trajectory.actions), "fallback_plan", 0)
         return choices
+
+    def _oracle_chunk(self, chunk: list[Problem], cand_sets: list, it: int, c0: int):
+        """The oracle bound's choices (:mod:`active.oracle`): every candidate of the chunk executed in one batch, each
+        sampling its water as the slot of its problem (as the chosen trajectory of any other method does), then per
+        problem the candidate whose data most improve the validation admission gap. Returns (choices, their results,
+        times: plan, sim, fit)."""
+        ctx, exp = self.ctx, self.ctx.exp
+        t0 = time.perf_counter()
+        validation = yield from self._validation_set()
+        rngs = [np.random.default_rng(derive_seed(ctx.seed, "choose", it, c0 + j)) for j in range(len(chunk))]
+        options = [
+            [
+                Choice(np.asarray(t.actions), "plan", len(cands.candidates), chosen=k)
+                for k, t in enumerate(cands.candidates)
+            ]
+            if cands is not None and len(cands.candidates)
+            else [RandomPlan().choose([], rng, lambda rng=rng: self.sampler.sample(exp.random_actions_length, rng))]
+            for cands, rng in zip(cand_sets, rngs)
+        ]
+        firsts = yield from self._plan_fallbacks(chunk, [o[0] for o in options], it, c0)
+        options = [o if o[0].source != "fallback" else [f] for o, f in zip(options, firsts)]
+        t_plan = time.perf_counter() - t0
+        ts = time.perf_counter()
+        flat = [(j, ch) for j, opts in enumerate(options) for ch in opts]
+        executed = yield SimNeed(
+            [chunk[j] for j, _ in flat],
+            [ch.actions for _, ch in flat],
+            exp.refit_every * max(exp.candidates, 1),
+            slots=[j for j, _ in flat],
+        )
+        t_sim = time.perf_counter() - ts
+        tf = time.perf_counter()
+        X, y = self.state["X"], self.state["y"]
+        choices, results, i = [], [], 0
+        for j, opts in enumerate(options):
+            outcomes, i = executed[i : i + len(opts)], i + len(opts)
+            data = [self._labelled([r]) for r in outcomes]
+            k = 0
+            if len(opts) > 1:
+                scores = score_candidates(self.make_mde, X, y, data, validation, exp.d_max, exp.beta_test)
+                k = best(scores, rngs[j])
+                opts[k].scores = scores
+                opts[k].chosen = k
+            choices.append(opts[k])
+            results.append(outcomes[k])
+            X, y = torch.cat([X, data[k][0]]), torch.cat([y, data[k][1]])
+        return choices, results, {"plan": t_plan, "sim": t_sim, "fit": time.perf_counter() - tf}
+
+    def _labelled(self, results: list) -> tuple[torch.Tensor, torch.Tensor]:
+        """Features and deviation labels of the transitions of executed trajectories (empty tensors if none)."""
+        s, a, s2 = stack_steps(results)
+        if not len(s):
+            return torch.zeros(0, len(FEATURE_NAMES), dtype=torch.float64), torch.zeros(0, dtype=torch.float64)
+        y = label_transitions(self.ctx.dynamics, s, a, s2, self.ctx.world.distance_weights)
+        return torch.as_tensor(features(s, a)), torch.as_tensor(y)
+
+    def _validation_set(self):
+        """The oracle's held-out target-world set (:mod:`active.oracle`), made at its first use and kept in the state:
+        problems of a stream of their own, the first half planned with the model alone (random actions where no plan
+        is found), the second half random actions."""
+        if "validation" in self.state:
+            return self.state["validation"]
+        ctx, exp = self.ctx, self.ctx.exp
+        n = self.spec.validation_trajectories
+        probs = sample_problems(ctx.world, n, derive_seed(ctx.seed, "oracle-validation"), world="target")
+        reqs = [
+            PlanRequest("plan", p.start, p.goal, d_max=exp.d_max, seed=derive_seed(ctx.seed, "oracle-validation", k))
+            for k, p in enumerate(probs[: n // 2])
+        ]
+        found = yield PlanNeed(reqs, None)
+        rng = np.random.default_rng(derive_seed(ctx.seed, "oracle-validation-actions"))
+        acts = [r.trajectory.actions if r.found else self.sampler.sample(exp.random_actions_length, rng) for r in found]
+        acts += [self.sampler.sample(exp.random_actions_length, rng) for _ in probs[n // 2 :]]
+        X, y = self._labelled((yield SimNeed(probs, [np.asarray(a) for a in acts], n)))
+        self.state["validation"] = {"X": X, "y": y, "plans_found": sum(r.found for r in found)}
+        log.info("oracle seed %d: validation set of %d trajectories, %d transitions", ctx.seed, n, len(y))
+        return self.state["validation"]
 
     def _choose(self, prob: Problem, cands: Any, it: int, k: int, reference: torch.Tensor | None = None):
         ctx, exp = self.ctx, self.ctx.exp

@@ -5,7 +5,9 @@
 * ``model_plan``: the same among candidates planned with the model alone (no MDE precondition): the non-adaptive
   baseline, which asks whether the MDE's say in data collection helps at all;
 * ``active_cautious`` / ``active_mean`` / ``active_balanced``: the candidate that maximises the
-  configured acquisition function (by default the paper's alpha with c = -0.1 / 0 / 0.1).
+  configured acquisition function (by default the paper's alpha with c = -0.1 / 0 / 0.1);
+* ``oracle``: not a method but a bound (:mod:`active.oracle`): every candidate executed, the one whose data most
+  improve the test precondition on a held-out validation set kept.
 
 The methods are specs in the ``methods:`` node of the run config (``configs/methods/default.yaml``:
 name -> ``_target_`` and its arguments), built with ``hydra.utils.instantiate``: a new method is a YAML
@@ -73,6 +75,20 @@ class RandomActions(Method):
 
     def choose(self, candidates, rng, random_actions, make_acquisition=None) -> Choice:
         return Choice(random_actions(), "random_actions", 0)
+
+
+class OracleBound(Method):
+    """The oracle bound (:mod:`active.oracle`): the loop executes every candidate and keeps the best one's data, so
+    it chooses after execution, not here. ``validation_trajectories``: the held-out target-world trajectories its
+    score is measured on (made once per run, half of them plans of the model alone)."""
+
+    def __init__(self, validation_trajectories: int = 64) -> None:
+        if int(validation_trajectories) < 2:
+            raise ValueError(f"oracle: validation_trajectories = {validation_trajectories!r}: allowed an integer >= 2")
+        self.validation_trajectories = int(validation_trajectories)
+
+    def choose(self, candidates, rng, random_actions, make_acquisition=None) -> Choice:
+        raise TypeError("the oracle chooses after executing every candidate (active.loop.MethodRun), not before")
 
 
 class RandomPlan(Method):

@@ -33,11 +33,13 @@ class PlanNeed:
 @dataclass
 class SimNeed:
     """Trajectories a run waits for, executed in the target world; ``batch``: the most a run's need of this
-    kind holds (a training chunk, the test problems). Trajectory k samples its water as slot k."""
+    kind holds (a training chunk, the test problems). Trajectory k samples its water as slot k, or as
+    ``slots[k]`` where given (the oracle's candidates of one problem share its slot)."""
 
     problems: list[Problem]
     actions: list[np.ndarray]
     batch: int
+    slots: list[int] | None = None
 
 
 def execute_needs(executor: PouringExecutor, needs: list[SimNeed]) -> list[list]:
@@ -53,10 +55,14 @@ def execute_needs(executor: PouringExecutor, needs: list[SimNeed]) -> list[list]
     if not probs:
         return [[] for _ in needs]
     for n in needs:
-        if len(n.problems) != len(n.actions) or len(n.problems) > n.batch:
+        if (
+            len(n.problems) != len(n.actions)
+            or len(n.problems) > n.batch
+            or len(n.slots or n.problems) != len(n.problems)
+        ):
             raise ValueError(f"SimNeed: {len(n.problems)} problems, {len(n.actions)} action sequences, batch {n.batch}")
     actions = [a for n in needs for a in n.actions]
-    slots = [k for n in needs for k in range(len(n.problems))]
+    slots = [k for n in needs for k in (n.slots if n.slots is not None else range(len(n.problems)))]
     size = min(sum(n.batch for n in needs), 1 << (len(probs) - 1).bit_length())
     pad = size - len(probs)
     slots += range(len(probs), size)  # the pads' own slots (unused by any trajectory)

@@ -53,6 +53,7 @@ from .baseline import is_true, latest_rows  # noqa: E402
 from .baseline import rates as model_only_rates  # noqa: E402
 from .identity import comparable_config, flatten  # noqa: E402
 from .io import RunFileError, read_csv, write_csv  # noqa: E402
+from .oracle import BOUND_NAMES  # noqa: E402
 
 CATEGORY_ORDER = ("successful_pour", "unsuccessful_pour", "stuck_in_plant", "other")
 CATEGORY_COLOURS = {
@@ -194,14 +195,15 @@ def plot_learning_curves(
             mc = [mean_ci(curve[i]) for i in its]
             mean = np.array([a for a, _ in mc])
             half = np.array([b for _, b in mc])
-            colour = method_colour(m)
+            colour, seeds = method_colour(m), f"{n_seeds[m]} seed{'' if n_seeds[m] == 1 else 's'}"
             ax.plot(
                 xs,
                 mean,
                 marker="o",
                 ms=3,
                 color=colour,
-                label=f"{m} ({n_seeds[m]} seed{'s' if n_seeds[m] != 1 else ''})",
+                ls="--" if m in BOUND_NAMES else "-",  # a bound (active.oracle), not a method
+                label=f"{m}{' (bound)' if m in BOUND_NAMES else ''} ({seeds})",
             )
             ax.fill_between(xs, np.clip(mean - half, 0, 1), np.clip(mean + half, 0, 1), color=colour, alpha=0.2)
         if ceiling is not None and key in CEILING_PANELS:

@@ -57,6 +57,7 @@ from .io import write_json  # noqa: E402
 from .lockstep import run_lockstep  # noqa: E402
 from .loop import Context, MethodRun  # noqa: E402
 from .methods import build_method  # noqa: E402
+from .oracle import BOUND_NAMES  # noqa: E402
 from .planner_setup import build_planner_config, planner_workers, planning_dynamics  # noqa: E402
 from .preflight import check_dynamics, check_geometry, check_seed, check_writable  # noqa: E402
 from .report import report  # noqa: E402
@@ -365,8 +366,8 @@ def compose_config(overrides: list[str] | None = None) -> dict:
 
 def headline(made: Mapping[str, Any]) -> float | None:
     """The run's headline metric, what a Hydra sweeper (Optuna, Ax) optimises: the best method's area under the
-    test-success curve (mean over seeds), or None before any iteration completed."""
-    aucs = [row["auc_success"] for row in made.get("summary", [])]
+    test-success curve (mean over seeds), or None before any iteration completed. A bound (``oracle``) is no method."""
+    aucs = [row["auc_success"] for row in made.get("summary", []) if row["method"] not in BOUND_NAMES]
     return float(max(aucs)) if aucs else None
 
 

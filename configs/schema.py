@@ -64,6 +64,7 @@ METHOD_PARAMS = {
     "active.methods.RandomPlan": (),
     "active.methods.ModelPlan": (),
     "active.methods.ActiveChoice": ("acquisition",),
+    "active.methods.OracleBound": ("validation_trajectories",),
 }
 #: Hydra's keys of an instantiable spec that the acquisition factory accepts besides the class's parameters
 SPEC_KEYS = ("_target_", "_partial_")
@@ -605,12 +606,18 @@ class Method(Group):
 
     target: dotted() = Field(alias="_target_")
     acquisition: Optional[AcquisitionArgs] = None
+    validation_trajectories: integer(ge=2) = None  # active.methods.OracleBound
 
     @model_validator(mode="after")
     def _parameters(self) -> "Method":
         given = {
             "_target_": self.target,
             **({"acquisition": self.acquisition} if "acquisition" in self.model_fields_set else {}),
+            **(
+                {"validation_trajectories": self.validation_trajectories}
+                if "validation_trajectories" in self.model_fields_set
+                else {}
+            ),
             **(self.model_extra or {}),
         }
         if self.target in METHOD_PARAMS:

@@ -167,21 +167,50 @@ def test_lockstep_over_two_seeds_resumes_to_more_iterations_with_the_straight_re
         assert read_csv(out / f"seed{s}" / "model_only.csv") == read_csv(straight / f"seed{s}" / "model_only.csv")
 
 
-def test_methods_draw_common_random_numbers_so_round_one_is_the_same_for_every_planning_method(cache, tmp_path):
+@pytest.fixture(scope="module")
+def three_methods(cache, tmp_path_factory) -> Path:
+    """One round of active_balanced, random_plan and the oracle bound (validation set of 4 trajectories)."""
+    out = tmp_path_factory.mktemp("three-methods")
+    over = [o for o in _overrides(cache) if not o.startswith("method=")]
+    over += [
+        "method=all",
+        f"experiment.methods=[{METHOD},random_plan,oracle]",
+        "experiment.iterations=1",
+        "methods.oracle.validation_trajectories=4",
+    ]
+    run_experiment(compose_config(over), out)
+    return out
+
+
+def _rows(out: Path, method: str, name: str) -> list[dict]:
+    return [{k: v for k, v in r.items() if k != "method"} for r in read_csv(out / method / name)]
+
+
+def test_methods_draw_common_random_numbers_so_round_one_is_the_same_for_every_planning_method(three_methods):
     """Common random numbers: the planning seeds and the pick among candidates are keyed on (seed, purpose,
     iteration, index), never on the method. active_balanced has no MDE in round 1, so it picks at random like
     random_plan, from the same stream: the two runs execute the same trajectories, fit the same MDE and record the
     same rows (method and timings aside) in every file of round 1."""
-    over = [o for o in _overrides(cache) if not o.startswith("method=")]
-    over += ["method=all", f"experiment.methods=[{METHOD},random_plan]", "experiment.iterations=1"]
-    run_experiment(compose_config(over), tmp_path)
-
-    def rows(method: str, name: str) -> list[dict]:
-        return [{k: v for k, v in r.items() if k != "method"} for r in read_csv(tmp_path / method / name)]
-
+    out = three_methods
     for name in ("categories.csv", "tests.csv", "calibration.csv"):
-        assert rows(METHOD, name) == rows("random_plan", name), name
-    assert _comparable(rows(METHOD, "results.csv")) == _comparable(rows("random_plan", "results.csv"))
-    assert {r["source"] for r in rows(METHOD, "categories.csv")} <= {"plan", "fallback"}
-    a, b = (torch.load(tmp_path / m / "dataset.pt") for m in (METHOD, "random_plan"))
+        assert _rows(out, METHOD, name) == _rows(out, "random_plan", name), name
+    assert _comparable(_rows(out, METHOD, "results.csv")) == _comparable(_rows(out, "random_plan", "results.csv"))
+    assert {r["source"] for r in _rows(out, METHOD, "categories.csv")} <= {"plan", "fallback"}
+    a, b = (torch.load(out / m / "dataset.pt") for m in (METHOD, "random_plan"))
     assert len(a["y"]) > 0 and torch.equal(a["X"], b["X"]) and torch.equal(a["y"], b["y"])
+
+
+def test_the_oracle_chooses_among_the_same_candidates_after_executing_them_and_keeps_one_per_problem(three_methods):
+    """The oracle plans the same candidate sets as random_plan in round 1 (no MDE yet, the same seeds), executes
+    them all and keeps one trajectory per problem; its validation set (4 trajectories, its own problems) is kept in
+    its state, and its dataset holds exactly its kept trajectories' transitions."""
+    from active.rundir import load_state
+
+    out = three_methods
+    mine, theirs = _rows(out, "oracle", "categories.csv"), _rows(out, "random_plan", "categories.csv")
+    assert [(r["goal"], r["n_candidates"]) for r in mine] == [(r["goal"], r["n_candidates"]) for r in theirs]
+    assert {r["source"] for r in mine} <= {"plan", "fallback"}
+    st = load_state(out / "oracle" / "state.pt")
+    assert len(st["validation"]["y"]) > 0 and st["validation"]["X"].shape == (len(st["validation"]["y"]), 8)
+    steps = sum(int(r["steps"]) for r in mine)
+    assert len(st["y"]) == steps and len(st["X"]) == steps
