@@ -107,7 +107,7 @@ def experiment_batches(cfg: dict, seed: int, iteration: int) -> tuple[Any, Any, 
                 n=exp.candidates,
                 beta=exp.beta(iteration),
                 d_max=exp.d_max,
-                seed=derive_seed(seed, method, "plan", iteration, k),
+                seed=derive_seed(seed, "plan", iteration, k),
             )
             for k, p in enumerate(train)
         ],
