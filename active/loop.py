@@ -244,58 +244,23 @@ class MethodRun:
             ctx.world, exp.trajectories_per_iteration, derive_seed(ctx.seed, "train", it), world="target"
         )
         plan_mde = self.mde if self.mde.is_fitted else None  # the precondition the planner uses
-        t_plan = t_sim = t_fit = 0.0
+        t = {"plan": 0.0, "sim": 0.0, "fit": 0.0}
         fallbacks = reached = 0
         self.plan_errors = 0  # planner runs that raised this iteration (recorded as not found)
         for c0 in range(0, len(problems), exp.refit_every):
             chunk = problems[c0 : c0 + exp.refit_every]
             tp = time.perf_counter()
             cand_sets = yield from self._plan_chunk(chunk, plan_mde, it, c0, beta)  # one planning batch per chunk
-            if isinstance(self.spec, OracleBound):  # chooses after executing every candidate
-                choices, results, t = yield from self._oracle_chunk(chunk, cand_sets, it, c0)
-                t_plan, t_sim, t_fit = t_plan + t["plan"], t_sim + t["sim"], t_fit + t["fit"]
-            else:
-                reference = _candidate_steps(cand_sets)
-                choices = [
-                    self._choose(prob, cands, it, c0 + j, reference)
-                    for j, (prob, cands) in enumerate(zip(chunk, cand_sets))
-                ]
-                choices = yield from self._plan_fallbacks(chunk, choices, it, c0)
-                t_plan += time.perf_counter() - tp
-                ts = time.perf_counter()
-                results = yield SimNeed(chunk, [c.actions for c in choices], exp.refit_every)
-                t_sim += time.perf_counter() - ts
-            for prob, ch, r in zip(chunk, choices, results):
-                fallbacks += ch.source.startswith("fallback")  # no admitted candidate (either fallback)
-                reached += bool(r.goal_reached)
-                self.state["categories"].append(
-                    {
-                        "method": self.method,
-                        "seed": ctx.seed,
-                        "iteration": it + 1,
-                        "trajectory": self.state["n_trajectories"],
-                        "category": r.category,
-                        "source": ch.source,
-                        "n_candidates": ch.n_candidates,
-                        "steps": len(r.steps),
-                        "stuck": r.stuck,
-                        "stuck_on": r.stuck_on or "",
-                        "final_spill": round(r.final_spill, 4),
-                        "goal": round(prob.goal, 4),
-                        "goal_reached": r.goal_reached,
-                    }
-                )
-                self.state["n_trajectories"] += 1
-            s, a, s2 = stack_steps(results)
-            if len(s):
-                y = label_transitions(ctx.dynamics, s, a, s2, ctx.world.distance_weights)
-                self.state["X"] = torch.cat([self.state["X"], torch.as_tensor(features(s, a))])
-                self.state["y"] = torch.cat([self.state["y"], torch.as_tensor(y)])
+            t["plan"] += time.perf_counter() - tp
+            pick = self._oracle_chunk if isinstance(self.spec, OracleBound) else self._chosen_chunk
+            choices, results = yield from pick(chunk, cand_sets, it, c0, t)
+            f, r = self._record(chunk, choices, results, it)
+            fallbacks, reached = fallbacks + f, reached + r
             tf = time.perf_counter()
             if len(self.state["y"]):
                 self.mde.fit(self.state["X"], self.state["y"])  # a failed fit keeps the previous one
                 plan_mde = self.mde
-            t_fit += time.perf_counter() - tf
+            t["fit"] += time.perf_counter() - tf
         tt = time.perf_counter()
         success, found = yield from self._test(plan_mde, it)
         t_test = time.perf_counter() - tt
@@ -313,14 +278,56 @@ class MethodRun:
             "train_goal_reached": reached / len(problems),
             "fallbacks": fallbacks,
             "plan_errors": self.plan_errors,
-            "plan_seconds": round(t_plan, 3),
-            "sim_seconds": round(t_sim, 3),
-            "fit_seconds": round(t_fit, 3),
+            "plan_seconds": round(t["plan"], 3),
+            "sim_seconds": round(t["sim"], 3),
+            "fit_seconds": round(t["fit"], 3),
             "test_seconds": round(t_test, 3),
             "iteration_seconds": round(time.perf_counter() - t_start, 3),
         }
         self.state["results"].append(row)
         return row
+
+    def _chosen_chunk(self, chunk: list[Problem], cand_sets: list, it: int, c0: int, t: dict):
+        """The method's choice per problem (fallbacks planned in one batch), executed in one batch; adds the times to
+        ``t``. Returns (choices, their results)."""
+        tp = time.perf_counter()
+        reference = _candidate_steps(cand_sets)
+        choices = [
+            self._choose(prob, cands, it, c0 + j, reference) for j, (prob, cands) in enumerate(zip(chunk, cand_sets))
+        ]
+        choices = yield from self._plan_fallbacks(chunk, choices, it, c0)
+        t["plan"] += time.perf_counter() - tp
+        ts = time.perf_counter()
+        results = yield SimNeed(chunk, [c.actions for c in choices], self.ctx.exp.refit_every)
+        t["sim"] += time.perf_counter() - ts
+        return choices, results
+
+    def _record(self, chunk: list[Problem], choices: list[Choice], results: list, it: int) -> tuple[int, int]:
+        """The chunk's rows of ``categories.csv`` and its labelled transitions into the state; returns how many
+        trajectories fell back and how many reached their goal."""
+        for prob, ch, r in zip(chunk, choices, results):
+            self.state["categories"].append(
+                {
+                    "method": self.method,
+                    "seed": self.ctx.seed,
+                    "iteration": it + 1,
+                    "trajectory": self.state["n_trajectories"],
+                    "category": r.category,
+                    "source": ch.source,
+                    "n_candidates": ch.n_candidates,
+                    "steps": len(r.steps),
+                    "stuck": r.stuck,
+                    "stuck_on": r.stuck_on or "",
+                    "final_spill": round(r.final_spill, 4),
+                    "goal": round(prob.goal, 4),
+                    "goal_reached": r.goal_reached,
+                }
+            )
+            self.state["n_trajectories"] += 1
+        X, y = self._labelled(results)
+        self.state["X"], self.state["y"] = torch.cat([self.state["X"], X]), torch.cat([self.state["y"], y])
+        fallbacks = sum(ch.source.startswith("fallback") for ch in choices)  # no admitted candidate (either fallback)
+        return fallbacks, sum(bool(r.goal_reached) for r in results)
 
     def _plan_chunk(self, chunk: list[Problem], mde: Any, it: int, c0: int, beta: float):
         """Candidate sets of the chunk's problems (problem k = c0 + j), planned in one batch."""
@@ -368,11 +375,11 @@ class MethodRun:
                 choices[j] = Choice(np.asarray(res.trajectory.actions), "fallback_plan", 0)
         return choices
 
-    def _oracle_chunk(self, chunk: list[Problem], cand_sets: list, it: int, c0: int):
+    def _oracle_chunk(self, chunk: list[Problem], cand_sets: list, it: int, c0: int, t: dict):
         """The oracle bound's choices (:mod:`active.oracle`): every candidate of the chunk executed in one batch, each
         sampling its water as the slot of its problem (as the chosen trajectory of any other method does), then per
-        problem the candidate whose data most improve the validation admission gap. Returns (choices, their results,
-        times: plan, sim, fit)."""
+        problem the candidate whose data most improve the validation admission gap; adds the times to ``t``. Returns
+        (choices, their results)."""
         ctx, exp = self.ctx, self.ctx.exp
         t0 = time.perf_counter()
         validation = yield from self._validation_set()
@@ -388,7 +395,7 @@ class MethodRun:
         ]
         firsts = yield from self._plan_fallbacks(chunk, [o[0] for o in options], it, c0)
         options = [o if o[0].source != "fallback" else [f] for o, f in zip(options, firsts)]
-        t_plan = time.perf_counter() - t0
+        t["plan"] += time.perf_counter() - t0
         ts = time.perf_counter()
         flat = [(j, ch) for j, opts in enumerate(options) for ch in opts]
         executed = yield SimNeed(
@@ -397,7 +404,7 @@ class MethodRun:
             exp.refit_every * max(exp.candidates, 1),
             slots=[j for j, _ in flat],
         )
-        t_sim = time.perf_counter() - ts
+        t["sim"] += time.perf_counter() - ts
         tf = time.perf_counter()
         X, y = self.state["X"], self.state["y"]
         choices, results, i = [], [], 0
@@ -413,7 +420,8 @@ class MethodRun:
             choices.append(opts[k])
             results.append(outcomes[k])
             X, y = torch.cat([X, data[k][0]]), torch.cat([y, data[k][1]])
-        return choices, results, {"plan": t_plan, "sim": t_sim, "fit": time.perf_counter() - tf}
+        t["fit"] += time.perf_counter() - tf
+        return choices, results
 
     def _labelled(self, results: list) -> tuple[torch.Tensor, torch.Tensor]:
         """Features and deviation labels of the transitions of executed trajectories (empty tensors if none)."""

@@ -19,7 +19,6 @@ LONGER = {
     "dynamics/data.py:generate_transitions": 93,
     "active/refine.py:refine_plans": 90,
     "planner/config.py:__post_init__": 89,
-    "active/loop.py:iteration_steps": 89,
     "planner/rrt.py:_run": 88,
     "active/report.py:report": 83,
 }
