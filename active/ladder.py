@@ -46,6 +46,7 @@ import safeio  # noqa: E402
 from mde.calibration import cross_validate  # noqa: E402
 from planner import ActionSampler, features  # noqa: E402
 from planner.pool import PlanPool, PlanRequest  # noqa: E402
+from sim.engine.config import NUMERICS_REVISION  # noqa: E402
 from sim.execute import CATEGORIES, PouringExecutor  # noqa: E402
 from sim.problems import sample_problems  # noqa: E402
 from sim.skills import MOVE, POUR, move, pour  # noqa: E402
@@ -248,15 +249,24 @@ def ceiling_dataset(world, pool, exp, executor, n_train: int, seed: int, batch: 
         "category": np.array([r.category for r in results]),
         "train_plans_found": np.array(sum(p is not None for p in plans)),
         "plant_on_contact": np.array(world.plant_on_contact),
+        "numerics_revision": np.array(NUMERICS_REVISION),
     }
 
 
 def check_ceiling_data(path: Path, on_contact: str) -> None:
     """Refuse a saved ceiling set made under another ``world.plant.on_contact``: a set made with ``stop`` lacks
     the stuck records that ``stuck`` adds (s' = s for each action a caught cup never made), so its MDE would
-    silently be another one. A set that does not record it is refused too (remake it with this command)."""
+    silently be another one. A set that does not record it is refused too (remake it with this command), and so is a
+    set simulated with other arithmetic (``sim.engine.config.NUMERICS_REVISION``): its pours are not this code's."""
     with np.load(path) as f:
         made = str(f["plant_on_contact"]) if "plant_on_contact" in f.files else None
+        revision = int(f["numerics_revision"]) if "numerics_revision" in f.files else 1
+    if revision != NUMERICS_REVISION:
+        raise ValueError(
+            f"--ceiling-data {path}: simulated with the solver's numerics revision {revision}, this code's is "
+            f"{NUMERICS_REVISION} (sim.engine.config.NUMERICS_REVISION); remake it: python -m active.ladder --out DIR "
+            f"--rungs ceiling"
+        )
     if made is None:
         raise ValueError(
             f"--ceiling-data {path}: records no world.plant.on_contact (not a ceiling set of this code); "

@@ -235,14 +235,15 @@ def test_ceiling_seeds_and_files_are_checked_before_compute(tmp_path):
 
 def test_a_saved_ceiling_set_made_under_another_plant_contact_is_refused(tmp_path):
     """A set made with ``world.plant.on_contact=stop`` lacks the records ``stuck`` adds: refused before any compute,
-    naming both settings; a set that records nothing is refused too."""
-    from pathlib import Path
+    naming both settings; a set that records nothing is refused too, and so is one of another numerics revision."""
 
     import numpy as np
 
     from active.ladder import check_ceiling_data
+    from sim.engine.config import NUMERICS_REVISION
 
-    stop_set = Path(__file__).parents[1] / "data" / "ceiling_sets" / "stop_seed0.npz"
+    stop_set = tmp_path / "stop.npz"  # the tags of a set made under stop (its transitions do not matter here)
+    np.savez(stop_set, plant_on_contact=np.array("stop"), numerics_revision=np.array(NUMERICS_REVISION))
     with pytest.raises(
         SystemExit,
         match=r"made with world.plant.on_contact=stop, but the run has "
@@ -252,6 +253,10 @@ def test_a_saved_ceiling_set_made_under_another_plant_contact_is_refused(tmp_pat
     assert not (tmp_path / "x").exists()
     check_ceiling_data(stop_set, "stop")
     untagged = tmp_path / "untagged.npz"
-    np.savez(untagged, category=np.array(["other"]))
+    np.savez(untagged, category=np.array(["other"]), numerics_revision=np.array(NUMERICS_REVISION))
     with pytest.raises(ValueError, match=r"records no world.plant.on_contact .*remake it"):
         check_ceiling_data(untagged, "stuck")
+    older = tmp_path / "older.npz"  # simulated with the direct 2D transfers (revision 1 records no revision)
+    np.savez(older, plant_on_contact=np.array("stuck"))
+    with pytest.raises(ValueError, match=r"numerics revision 1, this code's is 2 .*remake it"):
+        check_ceiling_data(older, "stuck")
