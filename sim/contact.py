@@ -25,7 +25,7 @@ import numpy as np
 
 from task import on_lattice
 
-from .skills import CONTACT_MARGIN, MOVE, Obstacles, cup_boundary, tilt_about_lip, to_world
+from .skills import CONTACT_MARGIN, MOVE, Obstacles, cup_boundary, to_world
 from .world import WorldConfig, check_world
 
 
@@ -57,6 +57,7 @@ class DistanceRaster:
         bodies_only = Obstacles(obstacles.bodies, np.full(2, -np.inf), np.full(2, np.inf))
         d, idx = bodies_only.sdf(nodes)
         self.d, self.idx = d.reshape(self.shape), idx.reshape(self.shape)
+        self.flat = self.d.ravel()  # read by linear index (ContactPredictor's touch test)
 
     def __call__(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(distance, closest obstacle: body index or -1 for the tank walls) of points p (k, 2)."""
@@ -140,19 +141,70 @@ class ContactPredictor:
         self.lip = cfg.controlled_cup.lip
         self.lattice = float(cfg.skills.get("lattice", 0.0))  # where a move really ends (plan_schedule)
         self._raster = DistanceRaster(self.obstacles, resolution, 2 * self.margin) if resolution is not None else None
+        self._bx, self._by = self.boundary[:, 0], self.boundary[:, 1]
+        self._u = np.linspace(0.0, 1.0, self.samples + 1)[1:]  # path fractions tested, then refined
+        self._sub = np.linspace(0.0, 1.0, self.refine + 1)[1:]
 
     # ------------------------------------------------------------------ paths
-    def _poses(self, p0: np.ndarray, a: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Cup poses (n, m, 3) at path fractions u (n, m) of each action (straight move / tilt about the lip)."""
-        move = np.rint(a[:, 0]) == MOVE
-        out = np.empty(u.shape + (3,))
-        if move.any():
-            goal = np.concatenate([on_lattice(a[move, 1:3], self.lattice), p0[move, 2:3]], 1)
-            out[move] = p0[move, None] + (goal - p0[move])[:, None] * u[move, :, None]
-        pour = ~move
-        if pour.any():
-            out[pour] = tilt_about_lip(p0[pour], self.lip, p0[pour, 2, None] + a[pour, 1, None] * u[pour])
+    def _path(self, p0: np.ndarray, a: np.ndarray, move: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Cup poses (x, y, theta, each (n, m)) at path fractions u (n, m) of each action: a straight move to
+        its lattice target, or a tilt about the lip.
+
+        Both formulas run on every row and ``np.where`` picks one: on the planner's batches (~16 rows) the
+        number of numpy calls, not their size, is the cost."""
+        x0, y0, t0 = p0[:, 0, None], p0[:, 1, None], p0[:, 2, None]
+        goal = on_lattice(a[:, 1:3], self.lattice)
+        lx, ly = self.lip
+        c, s = np.cos(p0[:, 2]), np.sin(p0[:, 2])
+        px = (p0[:, 0] + c * lx - s * ly)[:, None]
+        py = (p0[:, 1] + s * lx + c * ly)[:, None]
+        phi = t0 + a[:, 1, None] * u
+        cp, sp = np.cos(phi), np.sin(phi)
+        m = move[:, None]
+        x = np.where(m, x0 + (goal[:, 0, None] - x0) * u, px - (cp * lx - sp * ly))
+        y = np.where(m, y0 + (goal[:, 1, None] - y0) * u, py - (sp * lx + cp * ly))
+        return x, y, np.where(m, t0 + (t0 - t0) * u, phi)
+
+    def _touching(self, x: np.ndarray, y: np.ndarray, th: np.ndarray) -> np.ndarray:
+        """Whether the cup at each pose (flat arrays) comes within the margin of an obstacle (same poses'
+        outcome as ``_clearance(...)[0] < margin``, without the obstacle index)."""
+        c, s = np.cos(th), np.sin(th)
+        out = np.zeros(len(x), bool)
+        k = np.flatnonzero(self._near_cs(x, y, c, s))
+        if not k.size:
+            return out
+        x, y, c, s = x[k, None], y[k, None], c[k, None], s[k, None]
+        bx, by = self._bx, self._by
+        px = (c * bx - s * by + x).ravel()
+        py = (s * bx + c * by + y).ravel()
+        hit = self._outline_touching(px, py).reshape(k.size, -1).any(1)
+        if len(self._obstacle_pts):
+            hit |= (self._cup_sdf_cs(x, y, c, s, self._obstacle_pts) < self.margin).any(1)
+        out[k] = hit
         return out
+
+    def _outline_touching(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        """Whether world points (flat x, y) lie within the margin of an obstacle (``DistanceRaster``'s distance,
+        or the exact one without a raster)."""
+        m, r = self.margin, self._raster
+        if r is None:
+            return self.obstacles.sdf(np.stack([px, py], 1), cutoff=m)[0] < m
+        lo, hi = r.walls.interior_lo, r.walls.interior_hi
+        touch = (px - lo[0] < m) | (py - lo[1] < m) | (hi[0] - px < m) | (hi[1] - py < m)
+        if not r.shape[0]:
+            return touch
+        fx, fy = (px - r.lo[0]) / r.h, (py - r.lo[1]) / r.h
+        ix, iy = np.floor(fx).astype(int), np.floor(fy).astype(int)
+        k = np.flatnonzero((ix >= 0) & (ix < r.shape[0] - 1) & (iy >= 0) & (iy < r.shape[1] - 1))
+        if k.size:
+            ix, iy = ix[k], iy[k]
+            tx, ty = fx[k] - ix, fy[k] - iy
+            g, at = r.flat, ix * r.shape[1] + iy
+            d = (1 - tx) * ((1 - ty) * g[at] + ty * g[at + 1]) + tx * (
+                (1 - ty) * g[at + r.shape[1]] + ty * g[at + r.shape[1] + 1]
+            )
+            touch[k] |= d < m
+        return touch
 
     def _clearance(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Smallest obstacle distance of the cup outline (n, m) and the obstacle index (-1 = tank).
@@ -163,14 +215,16 @@ class ContactPredictor:
         flat = poses.reshape(-1, 3)
         d_out = np.full(n * m, np.inf)
         i_out = np.full(n * m, -2)
-        near = np.flatnonzero(self._near(flat))
+        c, s = np.cos(flat[:, 2]), np.sin(flat[:, 2])
+        near = np.flatnonzero(self._near_cs(flat[:, 0], flat[:, 1], c, s))
         if near.size:
             pts = to_world(self.boundary, flat[near]).reshape(-1, 2)
             # callers only compare with the margin: the exact path need only be exact below it
             d, idx = self._raster(pts) if self._raster is not None else self.obstacles.sdf(pts, cutoff=self.margin)
             d, idx = d.reshape(near.size, -1), idx.reshape(near.size, -1)
             if len(self._obstacle_pts):
-                d = np.concatenate([d, self._cup_sdf(flat[near], self._obstacle_pts)], 1)
+                x, y, cn, sn = flat[near, 0, None], flat[near, 1, None], c[near, None], s[near, None]
+                d = np.concatenate([d, self._cup_sdf_cs(x, y, cn, sn, self._obstacle_pts)], 1)
                 owners = np.broadcast_to(self._obstacle_owner, (near.size, len(self._obstacle_owner)))
                 idx = np.concatenate([idx, owners], 1)
             j = d.argmin(1)
@@ -178,24 +232,26 @@ class ContactPredictor:
             d_out[near], i_out[near] = d[rows, j], idx[rows, j]
         return d_out.reshape(n, m), i_out.reshape(n, m)
 
-    def _cup_sdf(self, poses: np.ndarray, pts: np.ndarray) -> np.ndarray:
-        """Signed distance (k, p) of world points to the cup's closed outer box at each pose (k, 3)."""
-        c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
-        dx = pts[None, :, 0] - poses[:, 0, None]
-        dy = pts[None, :, 1] - poses[:, 1, None]
+    def _cup_sdf_cs(self, x: np.ndarray, y: np.ndarray, c: np.ndarray, s: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """Signed distance (k, p) of world points to the cup's closed outer box at poses (x, y and the tilt's
+        cos, sin; each (k, 1))."""
+        dx = pts[None, :, 0] - x
+        dy = pts[None, :, 1] - y
         qx = np.abs(c * dx + s * dy - self.centre[0]) - self.half[0]
         qy = np.abs(-s * dx + c * dy - self.centre[1]) - self.half[1]
         return np.hypot(np.maximum(qx, 0), np.maximum(qy, 0)) + np.minimum(np.maximum(qx, qy), 0)
 
-    def _near(self, poses: np.ndarray) -> np.ndarray:
-        """(k,) whether a pose (k, 3) comes close enough to an obstacle to need the outline test."""
-        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-        xy = poses[:, :2] + np.stack([-s * self.centre[1], c * self.centre[1]], 1)
+    def _near_cs(self, x: np.ndarray, y: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """(k,) whether a pose (x, y and the tilt's cos, sin) comes close enough to an obstacle to need the
+        outline test."""
+        cx = x + -s * self.centre[1]
+        cy = y + c * self.centre[1]
         r = self.cup_radius + self.margin
-        ob = self.obstacles
-        near = ((xy - ob.interior_lo).min(-1) < r) | ((ob.interior_hi - xy).min(-1) < r)
+        lo, hi = self.obstacles.interior_lo, self.obstacles.interior_hi
+        near = (cx - lo[0] < r) | (cy - lo[1] < r) | (hi[0] - cx < r) | (hi[1] - cy < r)
         for cen, rad in self._circles:
-            near |= np.linalg.norm(xy - cen, axis=-1) < r + rad
+            dx, dy = cx - cen[0], cy - cen[1]
+            near |= np.sqrt(dx * dx + dy * dy) < r + rad
         return near
 
     # ------------------------------------------------------------------ public
@@ -216,27 +272,24 @@ class ContactPredictor:
         stop[move, :2] = on_lattice(a[move, 1:3], self.lattice)
         if n == 0:
             return stuck, stop, who
-        u = np.broadcast_to(np.linspace(0.0, 1.0, self.samples + 1)[1:], (n, self.samples))
-        path = self._poses(p0, a, u)
-        d, idx = self._clearance(path)
-        touch = d < self.margin
-        hit = touch.any(1)
-        rows = np.flatnonzero(hit)
+        u = np.broadcast_to(self._u, (n, self.samples))
+        touch = self._touching(*(v.ravel() for v in self._path(p0, a, move, u))).reshape(n, -1)
+        rows = np.flatnonzero(touch.any(1))
         if rows.size == 0:
             return stuck, stop, who
-        k = touch[hit].argmax(1)  # first touching sample
+        k = touch[rows].argmax(1)  # first touching sample
         u_lo = np.where(k > 0, u[rows, np.maximum(k - 1, 0)], 0.0)
         u_hi = u[rows, k]
         # refine inside (u_lo, u_hi]: the first touching sub-sample, and the pose before it
-        uu = u_lo[:, None] + (u_hi - u_lo)[:, None] * np.linspace(0.0, 1.0, self.refine + 1)[None, 1:]
-        sub = self._poses(p0[rows], a[rows], uu)
-        d2, idx2 = self._clearance(sub)
-        t2 = d2 < self.margin
-        j = t2.argmax(1)  # exists: the last sub-sample is u_hi, which touches
-        u_stop = np.where(j > 0, uu[np.arange(len(rows)), np.maximum(j - 1, 0)], u_lo)
-        stop[rows] = self._poses(p0[rows], a[rows], u_stop[:, None])[:, 0]
+        uu = u_lo[:, None] + (u_hi - u_lo)[:, None] * self._sub[None, :]
+        p0, a, move = p0[rows], a[rows], move[rows]
+        x, y, th = self._path(p0, a, move, uu)
+        j = self._touching(x.ravel(), y.ravel(), th.ravel()).reshape(rows.size, -1).argmax(1)  # exists: u_hi touches
+        at = np.arange(rows.size)
+        u_stop = np.where(j > 0, uu[at, np.maximum(j - 1, 0)], u_lo)
+        stop[rows] = np.stack(self._path(p0, a, move, u_stop[:, None]), -1)[:, 0]
         stuck[rows] = True
-        who[rows] = idx2[np.arange(len(rows)), j]
+        who[rows] = self._clearance(np.stack([x[at, j], y[at, j], th[at, j]], -1)[:, None])[1][:, 0]
         return stuck, stop, who
 
     def name(self, index: int) -> str:
