@@ -53,6 +53,7 @@ from typing import Iterator
 
 import numpy as np
 import torch
+from threadpoolctl import ThreadpoolController
 
 from task.threads import torch_threads
 
@@ -112,6 +113,22 @@ def _seed_ompl(seed: int) -> None:
         ou.setLogLevel(prev)
 
 
+_BLAS: list[ThreadpoolController] = []  # found once, after numpy's BLAS is loaded
+
+
+def _one_blas_thread() -> contextlib.AbstractContextManager:
+    """numpy's BLAS on one thread for the length of a run, then restored.
+
+    Why: the planner's matmuls are a few hundred rows at most, where a second BLAS thread buys nothing on
+    an idle CPU and, on a busy one (two planner workers on two cores), stalls them by orders of magnitude:
+    a [3, 64, 128] x [3, 128, 128] matmul took 127 ms with two threads and 0.7 ms with one while other
+    processes kept both cores busy. Results do not depend on the thread count (BLAS splits rows, not sums;
+    ``benchmarks/planner_profile.py`` checks that plans stay identical)."""
+    if not _BLAS:
+        _BLAS.append(ThreadpoolController())
+    return _BLAS[0].limit(limits=1, user_api="blas")
+
+
 def _torch_dtype(obj: object, default: torch.dtype) -> torch.dtype:
     """Dtype a model expects: ``obj.dtype`` if set, else its first parameter/buffer, else default."""
     dt = getattr(obj, "dtype", None)
@@ -138,10 +155,13 @@ def _torch_device(obj: object) -> torch.device:
 class _Queue:
     """Admissible transitions proposed for one node, consumed front to back."""
 
-    __slots__ = ("nxt", "act", "mu", "sd", "pos", "size", "k", "total")
+    __slots__ = ("nxt", "act", "mu", "sd", "gd", "pos", "size", "k", "total")
 
-    def __init__(self, nxt: np.ndarray, act: np.ndarray, mu: np.ndarray, sd: np.ndarray, k: int, total: int) -> None:
+    def __init__(
+        self, nxt: np.ndarray, act: np.ndarray, mu: np.ndarray, sd: np.ndarray, gd: np.ndarray, k: int, total: int
+    ) -> None:
         self.nxt, self.act, self.mu, self.sd = nxt, act, mu, sd
+        self.gd = gd  # goal distances of nxt, computed with the batch (one numpy call per refill, not per node)
         self.pos = 0
         self.size = len(nxt)
         self.k = k  # size of the batch that filled this queue
@@ -331,7 +351,8 @@ class _Search:
             nxt = np.clip(nxt, self.lo, self.hi)
         else:
             ok &= np.all((nxt >= self.lo) & (nxt <= self.hi), axis=1)
-        at_goal = self._goal_dist(nxt) <= 0.0
+        gd = self._goal_dist(nxt)
+        at_goal = gd <= 0.0
         at_accept = at_goal if self.accept_tol == self.tol else self._accepted(nxt)  # the fallback band's hits
         if self.c.prune_dead_states:
             ok &= ~self._dead(nxt) & ~self._stuck_move(nxt, acts)
@@ -354,7 +375,7 @@ class _Search:
             # next extension, as they would as goals of the wide band: the run finds whatever the wide band finds
             order = np.argsort((~at_goal[idx]).astype(np.int8) + ~at_accept[idx], kind="stable")
             idx, mu, sd = idx[order], mu[order], sd[order]
-        return _Queue(nxt[idx], acts[idx], mu, sd, k, total + k)
+        return _Queue(nxt[idx], acts[idx], mu, sd, gd[idx], k, total + k)
 
     def _dead(self, states: np.ndarray) -> np.ndarray:
         """States from which the goal is unreachable because water only ever moves "downhill".
@@ -412,7 +433,7 @@ class _Search:
         self.sd[nid] = q.sd[i]
         self.parent[nid] = pid
         self.depth[nid] = self.depth[pid] + 1
-        self.gdist[nid] = self._goal_dist(q.nxt[i])
+        self.gdist[nid] = q.gd[i]
         self.n = nid + 1
         self.idle = 0
         return nid
@@ -645,7 +666,7 @@ class Planner:
                 ),
             )
 
-        with _ompl_log(c.ompl_log_level), torch_threads(c.torch_threads):
+        with _ompl_log(c.ompl_log_level), torch_threads(c.torch_threads), _one_blas_thread():
             goal_node = self._solve_with_ompl(search, start, ompl_seed % (2**31 - 1) + 1)
         elapsed = time.perf_counter() - t0
         if search.error is not None:
