@@ -143,7 +143,7 @@ class ContactPredictor:
         self._raster = DistanceRaster(self.obstacles, resolution, 2 * self.margin) if resolution is not None else None
         self._bx, self._by = self.boundary[:, 0], self.boundary[:, 1]
         self._u = np.linspace(0.0, 1.0, self.samples + 1)[1:]  # path fractions tested, then refined
-        self._sub = np.linspace(0.0, 1.0, self.refine + 1)[1:]
+        self._sub = np.linspace(0.0, 1.0, self.refine + 1)
 
     # ------------------------------------------------------------------ paths
     def _path(self, p0: np.ndarray, a: np.ndarray, move: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -280,16 +280,15 @@ class ContactPredictor:
         k = touch[rows].argmax(1)  # first touching sample
         u_lo = np.where(k > 0, u[rows, np.maximum(k - 1, 0)], 0.0)
         u_hi = u[rows, k]
-        # refine inside (u_lo, u_hi]: the first touching sub-sample, and the pose before it
+        # refine inside (u_lo, u_hi]: the first touching sub-sample, and the pose before it (column 0 is u_lo)
         uu = u_lo[:, None] + (u_hi - u_lo)[:, None] * self._sub[None, :]
-        p0, a, move = p0[rows], a[rows], move[rows]
-        x, y, th = self._path(p0, a, move, uu)
-        j = self._touching(x.ravel(), y.ravel(), th.ravel()).reshape(rows.size, -1).argmax(1)  # exists: u_hi touches
+        x, y, th = self._path(p0[rows], a[rows], move[rows], uu)
+        d, idx = self._clearance(np.stack([x, y, th], -1))
+        j = (d[:, 1:] < self.margin).argmax(1)  # exists: u_hi touches
         at = np.arange(rows.size)
-        u_stop = np.where(j > 0, uu[at, np.maximum(j - 1, 0)], u_lo)
-        stop[rows] = np.stack(self._path(p0, a, move, u_stop[:, None]), -1)[:, 0]
+        stop[rows] = np.stack([x[at, j], y[at, j], th[at, j]], -1)
         stuck[rows] = True
-        who[rows] = self._clearance(np.stack([x[at, j], y[at, j], th[at, j]], -1)[:, None])[1][:, 0]
+        who[rows] = idx[at, j + 1]
         return stuck, stop, who
 
     def name(self, index: int) -> str:
