@@ -93,12 +93,24 @@ def pour_sweep(s: Tensor, theta: Tensor, geom: Tensor, consts: Tensor | None = N
 
 def pour_sweep_np(s: np.ndarray, theta: np.ndarray, geom: Sequence[float]) -> np.ndarray:
     """Numpy twin of :func:`pour_sweep`."""
+    return _pour_sweep_np(s, theta, _sweep_corners(geom))
+
+
+def _sweep_corners(geom: Sequence[float]) -> tuple[float, float, np.ndarray, np.ndarray]:
+    """Lip (x, y) and the outer corners relative to it (x, y arrays): what :func:`pour_sweep_np` needs of ``geom``."""
     lx, ly, cx, cy = _sweep_geometry(geom)
-    rx, ry = np.asarray(cx) - lx, np.asarray(cy) - ly
+    return lx, ly, np.asarray(cx) - lx, np.asarray(cy) - ly
+
+
+def _pour_sweep_np(
+    s: np.ndarray, theta: np.ndarray, corners: tuple[float, float, np.ndarray, np.ndarray]
+) -> np.ndarray:
+    """:func:`pour_sweep_np` with the geometry's constants precomputed (the planner calls it per tree node)."""
+    lx, ly, rx, ry = corners
     c0, s0 = np.cos(s[:, 2]), np.sin(s[:, 2])
     px = s[:, 0] + c0 * lx - s0 * ly
     py = s[:, 1] + s0 * lx + c0 * ly
-    phi = s[:, 2:3] + theta[:, None] * np.linspace(0.0, 1.0, SWEEP_STEPS)[None, :]
+    phi = s[:, 2:3] + theta[:, None] * _SWEEP_FRACTIONS[None, :]
     cp, sp = np.cos(phi)[..., None], np.sin(phi)[..., None]
     X = px[:, None, None] + cp * rx - sp * ry
     Y = py[:, None, None] + sp * rx + cp * ry
@@ -179,7 +191,7 @@ def np_forward(w: dict, k: int, s: np.ndarray, p: np.ndarray, activation: str) -
         f = np.concatenate([s, p, p - s[:, :2]], 1)
         nominal = np.concatenate([p, s[:, 2:3]], 1)
     else:
-        f = np.concatenate([s, p, pour_sweep_np(s, p[:, 0], w["geom"])], 1)
+        f = np.concatenate([s, p, _pour_sweep_np(s, p[:, 0], w["corners"])], 1)
         nominal = s[:, :3]
     h = f
     act = _ACT_NP_INPLACE[activation]
@@ -356,6 +368,7 @@ class LearnedDynamics(nn.Module):
                         "b": b,
                         "pose_scale": net.pose_scale.double().numpy().copy(),
                         "geom": net.cup_geom.tolist(),
+                        "corners": _sweep_corners(net.cup_geom.tolist()),
                         "lip": (lx, ly),
                         "radius": np.hypot(rx, ry)[:, None],
                         "angle": np.arctan2(ry, rx)[:, None],
