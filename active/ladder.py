@@ -30,6 +30,7 @@ and prints a table with the issue's targets next to the measured figures.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import os
 import time
@@ -52,11 +53,11 @@ from sim.problems import sample_problems  # noqa: E402
 from sim.skills import MOVE, POUR, move, pour  # noqa: E402
 from sim.world import WorldConfig  # noqa: E402
 
-from .experiment import ExperimentConfig  # noqa: E402
 from .labels import label_transitions, stack_steps  # noqa: E402
-from .planner_setup import build_planner_config, planner_workers, planning_dynamics  # noqa: E402
+from .planner_setup import planning_dynamics  # noqa: E402
 from .run import compose_config  # noqa: E402
 from .seeds import derive_seed  # noqa: E402
+from .settings import read_settings  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -441,14 +442,12 @@ def run_ladder(
     seed = int(cfg.get("seed", 0))
     ceiling_runs = _ceiling_runs(seed, ceiling_seeds, ceiling_data, out)
     t_start = time.perf_counter()
-    exp = ExperimentConfig.from_mapping(cfg["experiment"])
-    world = WorldConfig.from_mapping(cfg["world"])
+    settings = read_settings({**cfg, "method": "all"})
+    exp, world, planner_cfg, workers = settings.exp, settings.world, settings.planner, settings.workers
     if "ceiling" in rungs:  # before any compute, as the seeds and files above
         for _, data_file, reuse in ceiling_runs:
             if reuse:
                 check_ceiling_data(data_file, world.plant_on_contact)
-    planner_cfg = build_planner_config(world, cfg["planner"], exp)
-    workers = planner_workers(cfg["planner"])
     out.mkdir(parents=True, exist_ok=True)
     path = out / "ladder.json"
     result: dict[str, Any] = {
@@ -466,7 +465,7 @@ def run_ladder(
     if "reproducibility" in rungs:
         t0 = time.perf_counter()
         save("reproducibility", reproducibility(world, executor, thetas, hold, n=slots), t0)
-    seeds = [int(cfg["dynamics"]["train"]["seed"])] if model_seeds is None else [int(k) for k in model_seeds]
+    seeds = [settings.dynamics.train.seed] if model_seeds is None else [int(k) for k in model_seeds]
     model_rungs = [r for r in ("source_model_only", "target_model_only") if r in rungs]
     per_seed: dict[str, list[dict]] = {r: [] for r in model_rungs}
     mde_cfg = dict(cfg["mde"])
@@ -475,8 +474,8 @@ def run_ladder(
         if i > 0 and not model_rungs:
             break
         t0 = time.perf_counter()
-        dyn_cfg = {**cfg["dynamics"], "train": {**cfg["dynamics"]["train"], "seed": model_seed}}
-        dyn = planning_dynamics(dyn_cfg, cfg["world"], world, exp, progress)
+        dyn_cfg = settings.dynamics.replace(train=dataclasses.replace(settings.dynamics.train, seed=model_seed))
+        dyn = planning_dynamics(dyn_cfg, world, exp, progress)
         result.setdefault("rung_seconds", {})["dynamics" if i == 0 else f"dynamics_seed{model_seed}"] = (
             time.perf_counter() - t0
         )

@@ -43,15 +43,11 @@ NOT_RUN_SETTINGS = {
 
 
 def planning_dynamics(
-    dynamics_cfg: Mapping[str, Any],
-    world_cfg: Mapping[str, Any],
-    world: WorldConfig,
-    exp: ExperimentConfig,
-    progress: bool = False,
+    dynamics_cfg: dynamics.DynamicsConfig, world: WorldConfig, exp: ExperimentConfig, progress: bool = False
 ) -> Any:
-    """The model the experiment plans with: the cached source-world dynamics model of ``dynamics_cfg``
-    (trained on first use), wrapped with the known static geometry when ``experiment.known_obstacles``."""
-    dyn = dynamics.load_or_train(dynamics_cfg, world_cfg=world_cfg, progress=progress)
+    """The model the experiment plans with: the cached source-world dynamics model of ``dynamics_cfg`` in ``world``'s
+    source world (trained on first use), wrapped with the known static geometry when ``experiment.known_obstacles``."""
+    dyn = dynamics.load_or_train(dynamics_cfg, world_cfg=world, progress=progress)
     return dynamics.ContactAwareDynamics(dyn, world) if exp.known_obstacles else dyn
 
 

@@ -11,13 +11,14 @@ import itertools
 import os
 import secrets
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable
 
 import numpy as np
 
 from dynamics.config import DynamicsConfig
 from dynamics.train import cache_paths, is_cached
 from sim.skills import Obstacles, cup_boundary, to_world
+from sim.world import WorldConfig
 
 from .runlock import RunDirectoryError
 
@@ -133,14 +134,13 @@ def check_writable(folders: Iterable[Path], what: str = "output directory", fiel
             raise ValueError(msg) from None
 
 
-def check_dynamics(dyn_cfg: Mapping[str, Any], world_cfg: Mapping[str, Any]) -> dict[str, Any]:
-    """Validate the dynamics config; if its model is not all in the cache yet, the cache must be writable (a
-    complete cache may be read-only).
+def check_dynamics(c: DynamicsConfig, world: WorldConfig) -> dict[str, Any]:
+    """If the model of ``c`` (in ``world``'s source world) is not all in the cache yet, the cache must be writable
+    (a complete cache may be read-only).
 
     Returns :func:`dynamics.train.cache_paths` (where the data and the model are / will be).
     """
-    c = DynamicsConfig.from_dict(dyn_cfg)
-    p = cache_paths(c, None, world_cfg)
-    if not is_cached(c, None, world_cfg):
+    p = cache_paths(c, None, world)
+    if not is_cached(c, None, world):
         check_writable([p["root"]], what="dynamics cache", field="dynamics.cache_root")
     return p

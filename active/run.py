@@ -42,7 +42,8 @@ from omegaconf import DictConfig, OmegaConf  # noqa: E402
 import configs  # noqa: E402
 import safeio  # noqa: E402
 from configs.schema import check_config  # noqa: E402
-from planner import ActionSampler  # noqa: E402
+from dynamics import DynamicsConfig  # noqa: E402
+from planner import ActionSampler, PlannerConfig  # noqa: E402
 from planner.pool import PlanPool  # noqa: E402
 from sim.execute import PouringExecutor  # noqa: E402
 from sim.world import WorldConfig  # noqa: E402
@@ -58,12 +59,13 @@ from .lockstep import run_lockstep  # noqa: E402
 from .loop import Context, MethodRun  # noqa: E402
 from .methods import build_method  # noqa: E402
 from .oracle import BOUND_NAMES  # noqa: E402
-from .planner_setup import build_planner_config, planner_workers, planning_dynamics  # noqa: E402
-from .preflight import check_dynamics, check_geometry, check_seed, check_writable  # noqa: E402
+from .planner_setup import planning_dynamics  # noqa: E402
+from .preflight import check_dynamics, check_seed, check_writable  # noqa: E402
 from .report import report  # noqa: E402
 from .rundir import check_run_directory, clean_leftovers  # noqa: E402
 from .runlock import RunDirectoryError, RunLock  # noqa: E402
 from .seeds import derive_seed  # noqa: E402
+from .settings import read_settings  # noqa: E402
 from .tracking import Tracker  # noqa: E402
 
 log = logging.getLogger("active.run")
@@ -82,9 +84,10 @@ class RunSpec:
     seeds: list[int]
     single: bool  # one seed, written into the run directory itself (not seed<s>/)
     seed_dirs: dict[int, Path]
-    exp: Any
-    world: Any
-    planner_cfg: Any
+    exp: ExperimentConfig
+    world: WorldConfig
+    dynamics: DynamicsConfig
+    planner_cfg: PlannerConfig
     workers: int
     make_acq: Callable
     make_mde: Callable
@@ -125,7 +128,7 @@ def run_experiment(
             on_accept(out)
         torch.manual_seed(spec.seeds[0])
         log.info("dynamics model: loading from cache or training (source world only)")
-        dyn = planning_dynamics(spec.cfg["dynamics"], spec.cfg["world"], spec.world, spec.exp, spec.progress)
+        dyn = planning_dynamics(spec.dynamics, spec.world, spec.exp, spec.progress)
         executor = PouringExecutor(spec.world)
         for s in spec.seeds:
             if calibrations[s] is None:
@@ -159,7 +162,8 @@ def prepare_run(cfg: Mapping[str, Any], out: Path) -> RunSpec:
     check_config(cfg)  # every leaf's type, finiteness, range and choices, named by its full path (configs.schema)
     runner, seeds, single, cfg = run_layout(cfg)
     seed_dirs = {s: out for s in seeds} if single else {s: out / f"seed{s}" for s in seeds}
-    exp, world, planner_cfg, workers = run_settings(cfg)
+    settings = read_settings(cfg)
+    exp, world = settings.exp, settings.world
     make_acq = acquisition_factory(cfg["acquisition"], exp)
     for m in exp.methods:  # the methods: node; every spec instantiates, and fits the acquisition, before compute
         check_method_acquisition(m, build_method(m, cfg["methods"]), make_acq)
@@ -172,7 +176,7 @@ def prepare_run(cfg: Mapping[str, Any], out: Path) -> RunSpec:
     wandb_cfg = dict(cfg.get("wandb", {}))
     if wandb_cfg.get("mode", "offline") not in WANDB_MODES:
         raise ValueError(f"wandb.mode = {wandb_cfg.get('mode')!r}: allowed one of {WANDB_MODES}")
-    check_dynamics(cfg["dynamics"], cfg["world"])  # its config; the cache is writable if the model must be trained
+    check_dynamics(settings.dynamics, world)  # the cache is writable if the model must be trained
     test_problems = {
         s: sample_problems(world, exp.test_problems, derive_seed(s, "test"), world="target") for s in seeds
     }
@@ -185,8 +189,9 @@ def prepare_run(cfg: Mapping[str, Any], out: Path) -> RunSpec:
         seed_dirs=seed_dirs,
         exp=exp,
         world=world,
-        planner_cfg=planner_cfg,
-        workers=workers,
+        dynamics=settings.dynamics,
+        planner_cfg=settings.planner,
+        workers=settings.workers,
         make_acq=make_acq,
         make_mde=make_mde,
         mde_module=mde_module,
@@ -315,19 +320,6 @@ def run_layout(cfg: Mapping[str, Any]) -> tuple[str, list[int], bool, dict]:
     if len(set(seeds)) != len(seeds):
         raise ValueError(f"seeds = {seeds}: allowed each seed at most once")
     return runner, seeds, False, c
-
-
-def run_settings(cfg: Mapping[str, Any]) -> tuple[Any, Any, Any, int]:
-    """What a run of ``cfg`` is set to, validated before any compute: its ``ExperimentConfig``, its
-    ``WorldConfig`` (checked against the geometry), the ``PlannerConfig`` every planning call gets and
-    the number of planner processes. Errors name the key and what is allowed."""
-    exp = ExperimentConfig.from_mapping(
-        cfg["experiment"], method=str(cfg.get("method", "all")), registry=cfg.get("methods")
-    )
-    world = WorldConfig.from_mapping(cfg["world"])
-    check_geometry(world)
-    planner_cfg = build_planner_config(world, cfg["planner"], exp)
-    return exp, world, planner_cfg, planner_workers(cfg["planner"])
 
 
 CONFIG_DIR = configs.CONFIG_DIR

@@ -44,19 +44,18 @@ def labelled_set(paths: Sequence[Path], overrides: Sequence[str], trajectories: 
     ``trajectories``: only that many of each set (half random plans, half random actions)."""
     import torch
 
-    from active.experiment import ExperimentConfig
     from active.labels import label_transitions
     from active.ladder import ceiling_subset
     from active.planner_setup import planning_dynamics
     from active.run import compose_config
+    from active.settings import read_settings
     from planner import features
     from sim.skills import POUR
-    from sim.world import WorldConfig
 
     cfg = compose_config(list(overrides))
-    exp = ExperimentConfig.from_mapping(cfg["experiment"])
-    world = WorldConfig.from_mapping(cfg["world"])
-    dyn = planning_dynamics(cfg["dynamics"], cfg["world"], world, exp)
+    settings = read_settings({**cfg, "method": "all"})
+    exp, world = settings.exp, settings.world
+    dyn = planning_dynamics(settings.dynamics, world, exp)
     parts = []
     for p in paths:
         if not Path(p).exists():

@@ -139,11 +139,10 @@ def take_apart(
     the MDE files looked for, before anything is simulated."""
     import torch
 
-    from active.experiment import ExperimentConfig
     from active.planner_setup import planning_dynamics
     from active.run import compose_config
+    from active.settings import read_settings
     from sim.execute import PouringExecutor
-    from sim.world import WorldConfig
     from task import state_distance
     from task.problems import draw_plant_jitter
 
@@ -158,9 +157,9 @@ def take_apart(
         raise FileNotFoundError(f"--mde: no such file: {missing}")
     t_all = time.perf_counter()
     cfg = compose_config(list(overrides))
-    exp = ExperimentConfig.from_mapping(cfg["experiment"])
-    world = WorldConfig.from_mapping(cfg["world"])
-    dyn = planning_dynamics(cfg["dynamics"], cfg["world"], world, exp)
+    settings = read_settings({**cfg, "method": "all"})
+    exp, world = settings.exp, settings.world
+    dyn = planning_dynamics(settings.dynamics, world, exp)
     seeds = [set_seed(Path(p), None if set_seeds is None else set_seeds[k]) for k, p in enumerate(sets)]
     pours = find_pours(world, sets, seeds)
     if not pours:

@@ -58,24 +58,23 @@ def main(argv: list[str] | None = None) -> dict:
 
     import torch
 
-    from active.experiment import ExperimentConfig
     from active.ladder import execute_plans, plan_all
-    from active.planner_setup import build_planner_config, planner_workers, planning_dynamics
+    from active.planner_setup import planning_dynamics
     from active.run import compose_config
     from active.seeds import derive_seed
+    from active.settings import read_settings
     from planner.pool import PlanPool
     from sim.execute import PouringExecutor
     from sim.problems import sample_problems
-    from sim.world import WorldConfig
     from task import state_distance
 
     cfg = compose_config(list(args.overrides) + ["progress=false"])
-    exp = ExperimentConfig.from_mapping(cfg["experiment"])
-    world = WorldConfig.from_mapping(cfg["world"])
-    dyn = planning_dynamics(cfg["dynamics"], cfg["world"], world, exp)
+    settings = read_settings({**cfg, "method": "all"})
+    exp, world = settings.exp, settings.world
+    dyn = planning_dynamics(settings.dynamics, world, exp)
     seed = int(cfg.get("seed", 0))
     problems = sample_problems(world, args.problems, derive_seed(seed, "ladder-problems", args.world), world=args.world)
-    with PlanPool(dyn, build_planner_config(world, cfg["planner"], exp), planner_workers(cfg["planner"])) as pool:
+    with PlanPool(dyn, settings.planner, settings.workers) as pool:
         plans = plan_all(pool, None, problems, exp, seed, f"model-only-{args.world}")  # the ladder's own plans
     executor = PouringExecutor(world)
     results = execute_plans(executor, args.world, problems, plans)

@@ -70,17 +70,15 @@ def fingerprint(r: Any) -> Any:
 
 def experiment_batches(cfg: dict, seed: int, iteration: int) -> tuple[Any, Any, dict[str, list[PlanRequest]], dict]:
     """Dynamics model, planner config and the two request batches exactly as ``active.run`` builds them."""
-    from active.experiment import ExperimentConfig
-    from active.planner_setup import build_planner_config, planning_dynamics
+    from active.planner_setup import planning_dynamics
     from active.seeds import derive_seed
+    from active.settings import read_settings
     from sim.problems import sample_problems
-    from sim.world import WorldConfig
 
-    exp = ExperimentConfig.from_mapping(cfg["experiment"])
-    world = WorldConfig.from_mapping(cfg["world"])
-    planner_cfg = build_planner_config(world, cfg["planner"], exp)
+    settings = read_settings({**cfg, "method": "all"})
+    exp, world, planner_cfg = settings.exp, settings.world, settings.planner
     t = time.perf_counter()
-    dyn = planning_dynamics(cfg["dynamics"], cfg["world"], world, exp)
+    dyn = planning_dynamics(settings.dynamics, world, exp)
     info = {"load_s": time.perf_counter() - t, "known_obstacles": exp.known_obstacles}
     test = sample_problems(world, exp.test_problems, derive_seed(seed, "test"), world="target")
     train = sample_problems(

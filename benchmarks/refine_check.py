@@ -39,20 +39,21 @@ def run_check(
     progress: bool = True,
 ) -> dict:
     import mde as mde_pkg
-    from active.experiment import ExperimentConfig
-    from active.planner_setup import build_planner_config, planning_dynamics
+    from active.planner_setup import planning_dynamics
     from active.refine import refine_plans
     from active.seeds import derive_seed
+    from active.settings import read_settings
     from planner import Planner
     from sim.problems import sample_problems
-    from sim.world import WorldConfig, check_world
+    from sim.world import check_world
 
     check_world(world_name)
     cfg_path = run_dir / "config.json"
     if not cfg_path.is_file():
         raise FileNotFoundError(f"{cfg_path} not found: RUN_DIR must be the output directory of python -m active.run")
     cfg = json.loads(cfg_path.read_text())
-    exp = ExperimentConfig.from_mapping(cfg["experiment"])
+    settings = read_settings({**cfg, "method": "all"})
+    exp, world, planner_cfg = settings.exp, settings.world, settings.planner
     if steps < 1 or not lr > 0:
         raise ValueError(f"--steps {steps} / --lr {lr}: allowed steps >= 1 and lr > 0")
     mde, ckpt = None, None
@@ -64,9 +65,7 @@ def run_check(
         if ckpt is None:
             raise FileNotFoundError(f"no MDE checkpoint (mde_iter*.pt) in {run_dir / method}")
         mde = mde_pkg.load(ckpt)
-    world = WorldConfig.from_mapping(cfg["world"])
-    planner_cfg = build_planner_config(world, cfg["planner"], exp)
-    dyn = planning_dynamics(cfg["dynamics"], cfg["world"], world, exp, progress)
+    dyn = planning_dynamics(settings.dynamics, world, exp, progress)
     seed = int(cfg["seed"])
     n = n_problems or exp.test_problems
     problems = sample_problems(world, n, derive_seed(seed, "test"), world="target")

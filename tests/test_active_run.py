@@ -573,7 +573,8 @@ def test_model_plan_method_plans_its_candidates_without_the_mde():
     mine, theirs = need_of("model_plan"), need_of("random_plan")
     assert isinstance(mine, PlanNeed) and mine.mde is None and theirs.mde is mde
     assert [(r.kind, r.beta, r.goal) for r in mine.requests] == [(r.kind, r.beta, r.goal) for r in theirs.requests]
-    assert [r.seed for r in mine.requests] == [derive_seed(7, "model_plan", "plan", 2, j) for j in range(2)]
+    assert [r.seed for r in mine.requests] == [derive_seed(7, "plan", 2, j) for j in range(2)]
+    assert [r.seed for r in mine.requests] == [r.seed for r in theirs.requests]  # common random numbers
 
 
 def test_model_plan_fallback_replaces_refused_rounds_by_plans_of_the_model_alone():
@@ -620,7 +621,7 @@ def test_model_plan_fallback_replaces_refused_rounds_by_plans_of_the_model_alone
     assert isinstance(need, PlanNeed) and need.mde is None
     assert [r.kind for r in need.requests] == ["plan", "plan"]
     np.testing.assert_array_equal(need.requests[1].start, probs[2].start)
-    assert [r.seed for r in need.requests] == [derive_seed(7, "random_plan", "fallback-plan", 3, 6 + j) for j in (0, 2)]
+    assert [r.seed for r in need.requests] == [derive_seed(7, "fallback-plan", 3, 6 + j) for j in (0, 2)]
     assert [c.source for c in out] == ["fallback_plan", "plan", "fallback"]
     np.testing.assert_array_equal(out[0].actions, np.zeros((3, 3)))
     assert out[2].actions is rand and [c.source for c in choices] == ["fallback", "plan", "fallback"]  # input untouched
@@ -715,12 +716,14 @@ def test_a_complete_dynamics_cache_is_not_probed_for_writing(cache, straight_run
     such, so a read-only one works; an incomplete one must be writable. (A probe counter stands in for the file
     system's refusal, which root does not get.)"""
     import active.preflight as pf
+    from dynamics import DynamicsConfig
+    from sim.world import WorldConfig
 
     probed = []
     monkeypatch.setattr(pf, "check_writable", lambda folders, **kw: probed.append(kw.get("field")))
     cfg = compose_config(tiny_overrides(cache))
-    pf.check_dynamics(cfg["dynamics"], cfg["world"])
+    pf.check_dynamics(DynamicsConfig.from_dict(cfg["dynamics"]), WorldConfig.from_mapping(cfg["world"]))
     assert probed == []  # the tiny run trained and cached every member
     empty = compose_config(tiny_overrides(tmp_path / "empty-cache"))
-    pf.check_dynamics(empty["dynamics"], empty["world"])
+    pf.check_dynamics(DynamicsConfig.from_dict(empty["dynamics"]), WorldConfig.from_mapping(empty["world"]))
     assert probed == ["dynamics.cache_root"]

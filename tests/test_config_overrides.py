@@ -2,7 +2,7 @@
 and a key that cannot act is refused before any compute (naming the key and what is allowed).
 
 Composes the config as ``python -m active.run`` does (``active.run.compose_config``) and reads the objects
-a run plans and runs with (``active.run.run_settings``: the ExperimentConfig, the PlannerConfig every
+a run plans and runs with (``active.settings.read_settings``: the ExperimentConfig, the PlannerConfig every
 planning call gets, the planner processes). No simulation, no training.
 """
 
@@ -19,7 +19,8 @@ import yaml
 from active.experiment import ExperimentConfig
 from active.identity import config_digest
 from active.planner_setup import DERIVED_PLANNER_KEYS, NOT_RUN_SETTINGS
-from active.run import compose_config, run_experiment, run_settings
+from active.run import compose_config, run_experiment
+from active.settings import read_settings
 from planner import PlannerConfig
 
 REPO = Path(__file__).resolve().parents[1]
@@ -87,14 +88,15 @@ EXPERIMENT_ALTERNATIVES = {
 @pytest.fixture(autouse=True)
 def _no_geometry_check(monkeypatch):
     """The world's geometry check (about a second of signed distances) is tested elsewhere; not needed here."""
-    import active.run
+    import active.settings
 
-    monkeypatch.setattr(active.run, "check_geometry", lambda world: None)
+    monkeypatch.setattr(active.settings, "check_geometry", lambda world: None)
 
 
 def settings(overrides: list[str]):
-    """(ExperimentConfig, WorldConfig, PlannerConfig, planner processes) of ``python -m active.run <overrides>``."""
-    return run_settings(compose_config(overrides))
+    """The typed settings (experiment, world, dynamics, planner, planner processes) of ``python -m active.run
+    <overrides>``."""
+    return read_settings(compose_config(overrides))
 
 
 def _override(key: str, value) -> str:
@@ -123,8 +125,8 @@ def test_every_planner_key_is_tested_and_planner_only_keys_mirror_the_defaults()
 @pytest.mark.parametrize("key", sorted(PLANNER_ALTERNATIVES))
 def test_a_planner_only_key_reaches_the_runs_planner_config(key):
     value = PLANNER_ALTERNATIVES[key]
-    default = getattr(settings([])[2], key)
-    pc = settings([_override(f"planner.{key}", value)])[2]
+    default = getattr(settings([]).planner, key)
+    pc = settings([_override(f"planner.{key}", value)]).planner
     got = getattr(pc, key)
     assert got != default
     assert (list(got) if isinstance(got, tuple) else got) == value
@@ -133,7 +135,7 @@ def test_a_planner_only_key_reaches_the_runs_planner_config(key):
 @pytest.mark.parametrize("key", sorted(DERIVED_PLANNER_KEYS))
 def test_a_derived_planner_key_follows_its_source_and_is_refused_on_the_planner_side(key):
     override, want = SOURCE_ALTERNATIVES[key]
-    _, _, pc, _ = settings(override.split())
+    pc = settings(override.split()).planner
     assert getattr(pc, key) == want
     src = DERIVED_PLANNER_KEYS[key]
     with pytest.raises(
@@ -258,7 +260,7 @@ def test_experiment_defaults_are_the_quick_yaml():
 @pytest.mark.parametrize("key", sorted(EXPERIMENT_ALTERNATIVES))
 def test_an_experiment_key_reaches_the_experiment_config(key):
     value = EXPERIMENT_ALTERNATIVES[key]
-    exp = settings([_override(f"experiment.{key}", value)])[0]
+    exp = settings([_override(f"experiment.{key}", value)]).exp
     got = getattr(exp, key)
     assert (list(got) if isinstance(got, tuple) else got) == value
     assert got != getattr(ExperimentConfig(), key)
@@ -267,42 +269,44 @@ def test_an_experiment_key_reaches_the_experiment_config(key):
 # ------------------------------------------------------------------ the documented overrides
 def test_documented_overrides_arrive():
     """README's command table, configs/config.yaml, the experiment and planner YAML comments, BENCHMARKS.md."""
-    exp, _, pc, _ = settings(["experiment=paper", "method=active_balanced", "seed=2"])
+    st = settings(["experiment=paper", "method=active_balanced", "seed=2"])
+    exp, pc = st.exp, st.planner
     assert (exp.name, exp.methods, exp.iterations, exp.candidates) == ("paper", ("active_balanced",), 20, 9)
     assert (pc.n_candidates, pc.propagation_budget, pc.d_max) == (9, 10000, 0.07)
     assert compose_config(["seed=2"])["seed"] == 2
-    assert settings(["experiment.refine_steps=4"])[0].refine_steps == 4
+    assert settings(["experiment.refine_steps=4"]).exp.refine_steps == 4
     for e in EXPERIMENTS:  # README: the model without the known static geometry
-        assert settings([f"experiment={e}", "experiment.known_obstacles=false"])[0].known_obstacles is False
-    assert settings(["planner.workers=2"])[3] == 2 and settings(["planner.workers=1"])[3] == 1
-    assert settings(["planner.goal_bias=0.1"])[2].goal_bias == 0.1  # configs/planner/default.yaml
-    assert settings(["planner.stuck_move=0.01"])[2].stuck_move == 0.01  # README: known static geometry
-    assert settings(["experiment.plan_goal_tol=0.02"])[2].goal_tol == 0.02  # BENCHMARKS: ladder rungs
-    pc = settings([])[2]  # the default aims at the band's middle with a spill margin
+        assert settings([f"experiment={e}", "experiment.known_obstacles=false"]).exp.known_obstacles is False
+    assert settings(["planner.workers=2"]).workers == 2 and settings(["planner.workers=1"]).workers == 1
+    assert settings(["planner.goal_bias=0.1"]).planner.goal_bias == 0.1  # configs/planner/default.yaml
+    assert settings(["planner.stuck_move=0.01"]).planner.stuck_move == 0.01  # README: known static geometry
+    assert settings(["experiment.plan_goal_tol=0.02"]).planner.goal_tol == 0.02  # BENCHMARKS: ladder rungs
+    pc = settings([]).planner  # the default aims at the band's middle with a spill margin
     assert (pc.goal_tol, pc.accept_tol, pc.spill_limit) == (0.025, 0.05, 0.012)
     world_aim = ["experiment.plan_goal_tol=null", "experiment.plan_accept_tol=null", "experiment.plan_spill_limit=null"]
-    pc = settings(world_aim)[2]  # README: the band-edge planner, the world's band and limit
+    pc = settings(world_aim).planner  # README: the band-edge planner, the world's band and limit
     assert (pc.goal_tol, pc.accept_tol, pc.spill_limit) == (0.05, None, 0.02)
-    assert settings(["experiment.plan_spill_limit=0.01"])[2].spill_limit == 0.01  # BENCHMARKS: the planner's aim
-    pc = settings(["experiment.plan_goal_tol=0.02", "experiment.plan_accept_tol=0.05"])[2]  # BENCHMARKS: the aim
+    assert settings(["experiment.plan_spill_limit=0.01"]).planner.spill_limit == 0.01  # BENCHMARKS: the planner's aim
+    pc = settings(["experiment.plan_goal_tol=0.02", "experiment.plan_accept_tol=0.05"]).planner  # BENCHMARKS: the aim
     assert (pc.goal_tol, pc.accept_tol) == (0.02, 0.05)
     with pytest.raises(ValueError, match=r"experiment.plan_accept_tol = 0.06: allowed \(0, 0.05\]"):
         settings(["experiment.plan_accept_tol=0.06"])
     with pytest.raises(ValueError, match=r"experiment.plan_accept_tol = 0.01: allowed"):
         settings(["experiment.plan_goal_tol=0.02", "experiment.plan_accept_tol=0.01"])
-    leaf = settings(["world.plant.leaves.0.center=[0.045,0.26]"])[1].plant["leaves"][0]  # README: a higher leaf
+    leaf = settings(["world.plant.leaves.0.center=[0.045,0.26]"]).world.plant["leaves"][0]  # README: a higher leaf
     assert list(leaf["center"]) == [0.045, 0.26] and list(leaf["radii"]) == [0.045, 0.007]
-    leaf = settings(["world.plant.leaves.0.center=[0.065,0.22]", "world.plant.leaves.0.radii=[0.065,0.007]"])[1].plant[
-        "leaves"
-    ][0]  # README: the longer leaf, over 60 % of the mouth
+    leaf = settings(
+        ["world.plant.leaves.0.center=[0.065,0.22]", "world.plant.leaves.0.radii=[0.065,0.007]"]
+    ).world.plant["leaves"][0]  # README: the longer leaf, over 60 % of the mouth
     assert list(leaf["center"]) == [0.065, 0.22] and list(leaf["radii"]) == [0.065, 0.007]
     with pytest.raises(ValueError, match=r"experiment.plan_spill_limit = 0.03: allowed \[0, 0.02\]"):
         settings(["experiment.plan_spill_limit=0.03"])
-    assert settings(["experiment.planner_propagation_budget=20000"])[2].propagation_budget == 20000
-    exp, world, pc, _ = settings(["world=fine", "world.sim.arch=gpu", "experiment=paper", "method=active_balanced"])
+    assert settings(["experiment.planner_propagation_budget=20000"]).planner.propagation_budget == 20000
+    st = settings(["world=fine", "world.sim.arch=gpu", "experiment=paper", "method=active_balanced"])
+    exp, world, pc = st.exp, st.world, st.planner
     assert world.sim["dx"] == 0.005 and world.sim["arch"] == "gpu" and exp.name == "paper"
     assert (pc.n_candidates, pc.propagation_budget) == (9, 10000)
-    exp, _, pc, _ = settings(["experiment=tiny"])
+    pc = settings(["experiment=tiny"]).planner
     assert (pc.n_candidates, pc.propagation_budget, pc.time_budget) == (2, 500, 30.0)
     # README: acquisitions are a config group; your own by _target_ (configs/acquisition/, configs/methods/)
     for group in ("alpha", "lcb", "straddle", "variance"):
@@ -312,7 +316,7 @@ def test_documented_overrides_arrive():
     assert cfg["acquisition"]["_target_"] == "my_acq.WorstStepStd" and cfg["method"] == "active_balanced"
     assert compose_config(["acquisition.gamma=0.9"])["acquisition"]["gamma"] == 0.9
     for m in ("random_actions", "random_plan", "active_cautious", "active_mean", "active_balanced"):
-        assert settings([f"method={m}"])[0].methods == (m,)
+        assert settings([f"method={m}"]).exp.methods == (m,)
     from hydra.utils import instantiate  # README: bound every MDE lengthscale
 
     assert instantiate(compose_config(["mde.lengthscale_max=2"])["mde"]).config.lengthscale_max == 2.0
@@ -329,10 +333,8 @@ def test_the_acquisition_is_part_of_the_digest():
 def test_the_state_box_must_contain_the_action_ranges():
     with pytest.raises(ValueError, match=r"move_y=\[0.06, 0.4\] reaches outside the state bounds of y"):
         settings(["world.skills.move.y=[0.06,0.40]"])
-    assert settings(["world.skills.move.y=[0.06,0.40]", "planner.state_high=[0.55,0.40,2.4,1.0,1.0]"])[2].move_y == (
-        0.06,
-        0.4,
-    )
+    wider = ["world.skills.move.y=[0.06,0.40]", "planner.state_high=[0.55,0.40,2.4,1.0,1.0]"]
+    assert settings(wider).planner.move_y == (0.06, 0.4)
 
 
 # ------------------------------------------------------------------ the problems
@@ -345,10 +347,10 @@ def test_problems_are_the_worlds_and_pinned():
     assert via_sim is sample_problems
     pinned_goals = "world.problems.goal=[0.3,0.8]"  # the goal range of the pinned draws
     cfg = compose_config(["world.skills.lattice=0", pinned_goals])  # continuous positions: the draws themselves
-    _, world, _, _ = run_settings(cfg)
+    world = read_settings(cfg).world
     a, b = sample_problems(world, 2, 123), sample_problems(cfg["world"], 2, np.random.default_rng(123))
     # the default world puts the same draws on its 1 cm lattice
-    on = sample_problems(run_settings(compose_config([pinned_goals]))[1], 2, 123)
+    on = sample_problems(read_settings(compose_config([pinned_goals])).world, 2, 123)
     for p, q in zip(a, on):
         np.testing.assert_allclose(q.start[:2], np.round(p.start[:2] / 0.01) * 0.01, rtol=0, atol=1e-12)
         np.testing.assert_array_equal(p.plant_jitter, q.plant_jitter)
@@ -400,14 +402,14 @@ def test_method_specs_are_config_and_arrive_in_the_method_a_run_builds(tmp_path)
 
     def built(overrides: list[str], method: str):
         cfg = compose_config(["experiment=tiny", *overrides])
-        _, _, pc, _ = run_settings(cfg)
+        pc = read_settings(cfg).planner
         ctx = SimpleNamespace(cfg=cfg, out=tmp_path, planner_cfg=pc)
         return MethodRun(ctx, method, lambda: None, None, None).spec
 
     assert built([], "active_balanced").acquisition == {"c": 0.1}
     assert built(["methods.active_balanced.acquisition.c=0.25"], "active_balanced").acquisition == {"c": 0.25}
     mine = ["+methods.mine._target_=active.methods.RandomPlan", "method=mine"]
-    assert settings(mine)[0].methods == ("mine",) and isinstance(built(mine, "mine"), RandomPlan)
+    assert settings(mine).exp.methods == ("mine",) and isinstance(built(mine, "mine"), RandomPlan)
     assert isinstance(built([], "active_mean"), ActiveChoice)
     with pytest.raises(ValueError, match=r"method = 'nope': allowed one of \['active_admission', 'active_balanced'"):
         settings(["method=nope"])
