@@ -57,7 +57,7 @@ from .labels import label_transitions, stack_steps  # noqa: E402
 from .planner_setup import planning_dynamics  # noqa: E402
 from .run import compose_config  # noqa: E402
 from .seeds import derive_seed  # noqa: E402
-from .settings import read_settings  # noqa: E402
+from .settings import Settings, read_settings  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -436,35 +436,18 @@ def run_ladder(
     problems (saved to ``DIR/ceiling_train_seed<s>.npz``, or read from the matching ``ceiling_data``
     file), and reports the mean, the range and each set's record (``per_seed``): one training set moves
     the ceiling from 0.00 to 0.60 (BENCHMARKS.md, the measurable-effect ladder). None: the config's seed only."""
-    unknown = sorted(set(rungs) - set(RUNGS))
-    if unknown:
-        raise ValueError(f"--rungs {unknown}: allowed any of {list(RUNGS)}")
     seed = int(cfg.get("seed", 0))
-    ceiling_runs = _ceiling_runs(seed, ceiling_seeds, ceiling_data, out)
-    t_start = time.perf_counter()
-    settings = read_settings({**cfg, "method": "all"})
+    settings, ceiling_runs = _checked_inputs(cfg, rungs, seed, ceiling_seeds, ceiling_data, out)
     exp, world, planner_cfg, workers = settings.exp, settings.world, settings.planner, settings.workers
-    if "ceiling" in rungs:  # before any compute, as the seeds and files above
-        for _, data_file, reuse in ceiling_runs:
-            if reuse:
-                check_ceiling_data(data_file, world.plant_on_contact)
     out.mkdir(parents=True, exist_ok=True)
-    path = out / "ladder.json"
-    result: dict[str, Any] = {
-        "config": {"world": cfg["world"], "dynamics": cfg["dynamics"], "experiment": cfg["experiment"], "seed": seed}
-    }
+    record = _Record(
+        out / "ladder.json",
+        {"world": cfg["world"], "dynamics": cfg["dynamics"], "experiment": cfg["experiment"], "seed": seed},
+    )
     executor = PouringExecutor(world)
-
-    def save(name: str, value: Any, t0: float) -> None:
-        result[name] = value
-        result.setdefault("rung_seconds", {})[name] = time.perf_counter() - t0
-        result["seconds"] = time.perf_counter() - t_start
-        safeio.write_json(path, result, indent=1, default=float)
-        log.info("ladder: %s done (%.0f s)", name, time.perf_counter() - t0)
-
     if "reproducibility" in rungs:
         t0 = time.perf_counter()
-        save("reproducibility", reproducibility(world, executor, thetas, hold, n=slots), t0)
+        record.save("reproducibility", reproducibility(world, executor, thetas, hold, n=slots), t0)
     seeds = [settings.dynamics.train.seed] if model_seeds is None else [int(k) for k in model_seeds]
     model_rungs = [r for r in ("source_model_only", "target_model_only") if r in rungs]
     per_seed: dict[str, list[dict]] = {r: [] for r in model_rungs}
@@ -476,7 +459,7 @@ def run_ladder(
         t0 = time.perf_counter()
         dyn_cfg = settings.dynamics.replace(train=dataclasses.replace(settings.dynamics.train, seed=model_seed))
         dyn = planning_dynamics(dyn_cfg, world, exp, progress)
-        result.setdefault("rung_seconds", {})["dynamics" if i == 0 else f"dynamics_seed{model_seed}"] = (
+        record.result.setdefault("rung_seconds", {})["dynamics" if i == 0 else f"dynamics_seed{model_seed}"] = (
             time.perf_counter() - t0
         )
         with PlanPool(dyn, planner_cfg, workers, preload=[type(make_mde()).__module__]) as pool:
@@ -485,34 +468,68 @@ def run_ladder(
                 per_seed[name].append(
                     {"model_seed": model_seed, **model_only(world, name.split("_")[0], pool, exp, executor, n, seed)}
                 )
-                save(name, _mean_over(per_seed[name], "model_seed"), t0)
+                record.save(name, _mean_over(per_seed[name], "model_seed"), t0)
             if "ceiling" in rungs and i == 0:
-                t0 = time.perf_counter()
-                rows = []
+                t0, rows = time.perf_counter(), []
                 for ceiling_seed, data_path, reuse in ceiling_runs:
-                    rows.append(
-                        {
-                            "seed": ceiling_seed,
-                            **ceiling(
-                                world,
-                                dyn,
-                                pool,
-                                exp,
-                                executor,
-                                make_mde,
-                                n_train,
-                                n,
-                                ceiling_seed,
-                                data_path=data_path,
-                                reuse=reuse,
-                            ),
-                        }
+                    measured = ceiling(
+                        world,
+                        dyn,
+                        pool,
+                        exp,
+                        executor,
+                        make_mde,
+                        n_train,
+                        n,
+                        ceiling_seed,
+                        data_path=data_path,
+                        reuse=reuse,
                     )
-                    save("ceiling", _mean_over(rows, "seed"), t0)
+                    rows.append({"seed": ceiling_seed, **measured})
+                    record.save("ceiling", _mean_over(rows, "seed"), t0)
     executor.close()
-    result["seconds"] = time.perf_counter() - t_start
-    safeio.write_json(path, result, indent=1, default=float)
-    return result
+    return record.close()
+
+
+def _checked_inputs(
+    cfg: dict,
+    rungs: Sequence[str],
+    seed: int,
+    ceiling_seeds: Sequence[int] | None,
+    ceiling_data: Path | Sequence[Path] | None,
+    out: Path,
+) -> tuple[Settings, list[tuple[int, Path, bool]]]:
+    """The run's settings and its ceiling measurements (:func:`_ceiling_runs`), every input checked before any compute:
+    the rungs, the seeds and saved sets (made under this plant model and numerics revision)."""
+    unknown = sorted(set(rungs) - set(RUNGS))
+    if unknown:
+        raise ValueError(f"--rungs {unknown}: allowed any of {list(RUNGS)}")
+    ceiling_runs = _ceiling_runs(seed, ceiling_seeds, ceiling_data, out)
+    settings = read_settings({**cfg, "method": "all"})
+    if "ceiling" in rungs:
+        for _, data_file, reuse in ceiling_runs:
+            if reuse:
+                check_ceiling_data(data_file, settings.world.plant_on_contact)
+    return settings, ceiling_runs
+
+
+class _Record:
+    """``ladder.json``: the config, each rung's result and its seconds, rewritten (atomically) after each rung."""
+
+    def __init__(self, path: Path, config: dict) -> None:
+        self.path, self.t_start = path, time.perf_counter()
+        self.result: dict[str, Any] = {"config": config}
+
+    def save(self, name: str, value: Any, t0: float) -> None:
+        self.result[name] = value
+        self.result.setdefault("rung_seconds", {})[name] = time.perf_counter() - t0
+        self.close()
+        log.info("ladder: %s done (%.0f s)", name, time.perf_counter() - t0)
+
+    def close(self) -> dict:
+        self.result["seconds"] = time.perf_counter() - self.t_start
+        safeio.write_json(self.path, self.result, indent=1, default=float)
+        return self.result
 
 
 RUNGS = ("reproducibility", "source_model_only", "target_model_only", "ceiling")
@@ -608,7 +625,8 @@ def table(result: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv: Sequence[str] | None = None) -> None:
+def _parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m active.ladder``."""
     ap = argparse.ArgumentParser(
         prog="python -m active.ladder", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -659,6 +677,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         "(default: the config's model only)",
     )
     ap.add_argument("overrides", nargs="*", help="Hydra overrides, as for python -m active.run")
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    ap = _parser()
     args, extra = ap.parse_known_args(argv)
     bad = [e for e in extra if "=" not in e]
     if bad:
