@@ -435,3 +435,18 @@ def test_p_values_below_a_thousandth_are_written_as_such():
     }
     text = "\n".join(paired_table([row]))
     assert "| < 0.001 |" in text and "| 0.000 |" not in text
+
+
+def test_a_bound_is_marked_as_one_in_the_summary_and_is_never_the_runs_headline():
+    """The oracle (active.oracle) bounds what any choice among the candidates can reach: the summary table names it
+    a bound, and the headline a sweeper optimises is the best method's AUC, not the bound's."""
+    from active.report import summary_lines
+    from active.run import headline
+
+    keys = ("auc_success", "auc_plan_found", "final_success", "train_goal_reached")
+    row = {**{k: 0.5 for k in keys}, **{f"{k}_ci95": 0.1 for k in keys}, "seeds": 3}
+    lines = summary_lines([{**row, "method": "oracle"}, {**row, "method": "random_plan"}])
+    assert lines[2].startswith("| oracle (bound) | 3 |") and lines[3].startswith("| random_plan | 3 |")
+    made = {"summary": [{"method": "oracle", "auc_success": 0.9}, {"method": "random_plan", "auc_success": 0.6}]}
+    assert headline(made) == 0.6
+    assert headline({"summary": [{"method": "oracle", "auc_success": 0.9}]}) is None

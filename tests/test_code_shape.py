@@ -18,7 +18,6 @@ LONGER = {
     "active/refine.py:refine_plans": 90,
     "planner/config.py:__post_init__": 89,
     "planner/rrt.py:_run": 88,
-    "active/report.py:report": 83,
 }
 
 
