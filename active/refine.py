@@ -40,6 +40,27 @@ def last_pour(actions: np.ndarray) -> int | None:
     return int(idx[-1]) if idx.size else None
 
 
+def _last_pours(plans: Sequence[Any], goals: Sequence[float]) -> tuple[list, list, list, list, dict]:
+    """Per plan with a pour from a cup that holds water: (plan index, action index) of its last pour, the pour's
+    parameters (x, y, theta, hold), the water in the cup before it and the share of that water the goal needs; and
+    why each other plan is skipped."""
+    rows, params, v_ctrl, pour_goal, skipped = [], [], [], [], {}
+    for i, (p, g) in enumerate(zip(plans, goals)):
+        k = last_pour(p.actions)
+        if k is None:
+            skipped[i] = "no pour"
+            continue
+        s = np.asarray(p.states[k], float)
+        if s[3] <= 0.02:
+            skipped[i] = "cup (nearly) empty before the pour"
+            continue
+        rows.append((i, k))
+        params.append([s[0], s[1], p.actions[k][1], p.actions[k][2]])
+        v_ctrl.append(min(float(s[3]), 1.0))
+        pour_goal.append(float(np.clip((g - s[4]) / s[3], 0.0, 1.0)))
+    return rows, params, v_ctrl, pour_goal, skipped
+
+
 def refine_plans(
     world: Any,
     plans: Sequence[Any],
@@ -66,20 +87,7 @@ def refine_plans(
 
     t0 = time.perf_counter()
     out = [np.array(p.actions, float, copy=True) for p in plans]
-    rows, params, v_ctrl, pour_goal, skipped = [], [], [], [], {}
-    for i, (p, g) in enumerate(zip(plans, goals)):
-        k = last_pour(p.actions)
-        if k is None:
-            skipped[i] = "no pour"
-            continue
-        s = np.asarray(p.states[k], float)
-        if s[3] <= 0.02:
-            skipped[i] = "cup (nearly) empty before the pour"
-            continue
-        rows.append((i, k))
-        params.append([s[0], s[1], p.actions[k][1], p.actions[k][2]])
-        v_ctrl.append(min(float(s[3]), 1.0))
-        pour_goal.append(float(np.clip((g - s[4]) / s[3], 0.0, 1.0)))
+    rows, params, v_ctrl, pour_goal, skipped = _last_pours(plans, goals)
     refined = np.zeros(len(plans), bool)
     empty = np.zeros((0, 4))
     if not rows:

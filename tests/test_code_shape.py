@@ -15,7 +15,6 @@ MAX_LINES = 80
 LONGER = {
     "dynamics/train.py:fit": 101,
     "dynamics/data.py:generate_transitions": 93,
-    "active/refine.py:refine_plans": 90,
     "planner/config.py:__post_init__": 89,
     "planner/rrt.py:_run": 88,
 }
