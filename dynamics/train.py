@@ -112,15 +112,7 @@ def fit(
         torch.manual_seed(tc.seed)
         model = LearnedDynamics(mc)
         model.set_cup_geometry(cup.inner_width, cup.inner_height, cup.wall)
-        missing = []
-        for k in (MOVE, POUR):
-            rows = tr_idx[skill[tr_idx] == k]
-            if len(rows) == 0:
-                missing.append(SKILLS[k])
-                continue
-            model.nets[k].set_statistics(ds.s[rows], ds.a[rows], ds.s_next[rows], mc)
-        if missing:
-            log.warning("no training transitions of skill(s) %s: their network stays untrained", missing)
+        missing = _set_statistics(model, ds, tr_idx, skill, mc)
         S, A, SN = (torch.from_numpy(np.ascontiguousarray(x)) for x in (ds.s, ds.a, ds.s_next))
         tr, va = torch.from_numpy(tr_idx), torch.from_numpy(va_idx)
         opt = torch.optim.Adam(model.parameters(), lr=tc.lr, weight_decay=tc.weight_decay)
@@ -136,36 +128,7 @@ def fit(
             pose = torch.sqrt((e[:, :3] ** 2).sum(1) + 1e-10)  # eps: finite gradient at zero error
             return (w["pose"] * pose + w["volume"] * (e[:, 3].abs() + e[:, 4].abs())).mean()
 
-        best, best_state, best_epoch, stale = float("inf"), copy.deepcopy(model.state_dict()), -1, 0
-        history = []
-        bar = tqdm(range(tc.max_epochs), desc="train dynamics", unit="epoch", disable=not progress)
-        for epoch in bar:
-            model.train()
-            perm = tr[torch.randperm(len(tr), generator=gen)]
-            total = 0.0
-            for i in range(0, len(perm), tc.batch_size):
-                idx = perm[i : i + tc.batch_size]
-                loss = loss_of(idx)
-                opt.zero_grad()
-                loss.backward()
-                opt.step()
-                total += float(loss.detach()) * len(idx)
-            if sched is not None:
-                sched.step()
-            model.eval()
-            with torch.no_grad():
-                val = float(loss_of(va)) if len(va) else total / len(tr)
-            history.append((total / len(tr), val))
-            if val < best:
-                best, best_state, best_epoch, stale = val, copy.deepcopy(model.state_dict()), epoch, 0
-            else:
-                stale += 1
-            bar.set_postfix(train=f"{total / len(tr):.4f}", val=f"{val:.4f}", best=best_epoch)
-            if stale >= tc.patience:
-                break
-        bar.close()
-        model.load_state_dict(best_state)
-        model.eval()
+        history, best, best_epoch = _train_epochs(model, loss_of, tr, va, opt, sched, gen, tc, progress)
     metrics = {
         "epochs_run": len(history),
         "best_epoch": best_epoch,
@@ -181,6 +144,56 @@ def fit(
     }
     model.info["training"] = metrics
     return model
+
+
+def _set_statistics(model: LearnedDynamics, ds: Transitions, tr_idx: np.ndarray, skill: np.ndarray, mc: ModelConfig):
+    """Each skill's network normalised on its training rows; returns the skills without any (left untrained)."""
+    missing = []
+    for k in (MOVE, POUR):
+        rows = tr_idx[skill[tr_idx] == k]
+        if len(rows) == 0:
+            missing.append(SKILLS[k])
+            continue
+        model.nets[k].set_statistics(ds.s[rows], ds.a[rows], ds.s_next[rows], mc)
+    if missing:
+        log.warning("no training transitions of skill(s) %s: their network stays untrained", missing)
+    return missing
+
+
+def _train_epochs(model, loss_of, tr, va, opt, sched, gen, tc: TrainConfig, progress: bool):
+    """Minibatch epochs in the generator's order until ``tc.patience`` epochs bring no better validation loss; the
+    model is left at its best epoch, in eval mode. Returns (history of (train, val) losses, best val, best epoch)."""
+    best, best_state, best_epoch, stale = float("inf"), copy.deepcopy(model.state_dict()), -1, 0
+    history = []
+    bar = tqdm(range(tc.max_epochs), desc="train dynamics", unit="epoch", disable=not progress)
+    for epoch in bar:
+        model.train()
+        perm = tr[torch.randperm(len(tr), generator=gen)]
+        total = 0.0
+        for i in range(0, len(perm), tc.batch_size):
+            idx = perm[i : i + tc.batch_size]
+            loss = loss_of(idx)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += float(loss.detach()) * len(idx)
+        if sched is not None:
+            sched.step()
+        model.eval()
+        with torch.no_grad():
+            val = float(loss_of(va)) if len(va) else total / len(tr)
+        history.append((total / len(tr), val))
+        if val < best:
+            best, best_state, best_epoch, stale = val, copy.deepcopy(model.state_dict()), epoch, 0
+        else:
+            stale += 1
+        bar.set_postfix(train=f"{total / len(tr):.4f}", val=f"{val:.4f}", best=best_epoch)
+        if stale >= tc.patience:
+            break
+    bar.close()
+    model.load_state_dict(best_state)
+    model.eval()
+    return history, best, best_epoch
 
 
 def error_table(
