@@ -49,7 +49,7 @@ def test_leave_one_set_out_needs_two_sets(tmp_path):
 def test_trajectories_without_leave_one_set_out_is_refused(tmp_path, capsys):
     from benchmarks.admission import main
 
-    with pytest.raises(SystemExit):
+    with pytest.raises(SystemExit, match="2"):  # argparse's usage error
         main([str(tmp_path), "--sets", str(tmp_path / "a.npz"), "--trajectories", "8"])
     assert "--trajectories goes with --leave-one-set-out" in capsys.readouterr().err
 
@@ -78,6 +78,6 @@ def test_refit_cuts_a_runs_data_at_each_iterations_transition_count(tmp_path):
 def test_refit_without_runs_is_refused(tmp_path, capsys):
     from benchmarks.admission import main
 
-    with pytest.raises(SystemExit):
+    with pytest.raises(SystemExit, match="2"):  # argparse's usage error
         main(["--sets", str(tmp_path / "a.npz"), "--leave-one-set-out", "--refit", "4"])
     assert "--refit goes with run directories" in capsys.readouterr().err

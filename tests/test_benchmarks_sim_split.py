@@ -7,9 +7,10 @@ import pytest
 from benchmarks.sim_split import main
 
 
-def test_one_substep_count_per_spacing_is_required():
-    with pytest.raises(SystemExit):
+def test_one_substep_count_per_spacing_is_required(capsys):
+    with pytest.raises(SystemExit, match="2"):
         main(["--dx", "0.01", "0.005", "--substeps", "10"])
+    assert "--substeps: give one count per --dx (2), got 1" in capsys.readouterr().err
 
 
 @pytest.mark.slow  # compiles two 3D solvers
