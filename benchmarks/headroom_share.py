@@ -15,8 +15,8 @@ each target world, labels each transition with its deviation from the model's pr
 
 The source world's row is the model's error outside any plant (the part of R no plant variant moves). ``--leaf SPAN
 HEIGHT`` (m, repeatable) adds a variant of the default world whose first leaf (the one over the target cup's mouth)
-spans SPAN from the stem at HEIGHT above the floor, the knob the headroom worlds (``configs/world/headroom_*.yaml``)
-are set with.
+spans SPAN from the stem at HEIGHT above the floor; ``--leaf-alone SPAN HEIGHT`` the same leaf as the whole plant
+(no other leaves, a stub of a stem), so that R is where that leaf is.
 """
 
 from __future__ import annotations
@@ -34,14 +34,21 @@ from benchmarks._cli import report
 
 #: trajectories per target-world simulation call
 BATCH = 32
+#: m, the stem of a leaf-only plant (``--leaf-alone``): a stub on the floor, below every cup position
+STUB = 0.02
 
 
-def leaf_world(world: dict, span: float, height: float) -> dict:
-    """``world`` (a plain world config) with its first leaf spanning ``span`` (m) from the stem at ``height`` (m)."""
+def leaf_world(world: dict, span: float, height: float, alone: bool = False) -> dict:
+    """``world`` (a plain world config) with its first leaf spanning ``span`` (m) from the stem at ``height`` (m);
+    ``alone``: that leaf is the whole plant (the other leaves gone, the stem a stub of :data:`STUB` m), so that the
+    leaf is the only place the plant can catch a cup."""
     w = copy.deepcopy(world)
     leaf = w["plant"]["leaves"][0]
     leaf["center"] = [span / 2, height]
     leaf["radii"] = [span / 2, leaf["radii"][1]]
+    if alone:
+        w["plant"]["leaves"] = [leaf]
+        w["plant"]["stem_height"] = STUB
     return w
 
 
@@ -126,6 +133,15 @@ def main(argv: Sequence[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--worlds", nargs="*", default=["default"], help="world config names (configs/world/)")
     ap.add_argument("--leaf", nargs=2, type=float, action="append", default=[], metavar=("SPAN", "HEIGHT"))
+    ap.add_argument(
+        "--leaf-alone",
+        nargs=2,
+        type=float,
+        action="append",
+        default=[],
+        metavar=("SPAN", "HEIGHT"),
+        help="as --leaf, the leaf the whole plant (no other leaves, a stub of a stem)",
+    )
     ap.add_argument("--problems", type=int, default=24, help="training problems (x experiment.candidates each)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path)
@@ -140,6 +156,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
         f"world={w}": compose_config(["progress=false", f"world={w}", *args.overrides])["world"] for w in args.worlds
     }
     worlds |= {f"leaf span {s:.3f} m at {h:.3f} m": leaf_world(cfg["world"], s, h) for s, h in args.leaf}
+    worlds |= {f"leaf alone, {s:.3f} m at {h:.3f} m": leaf_world(cfg["world"], s, h, True) for s, h in args.leaf_alone}
     t0 = time.perf_counter()
     print(f"planning {args.problems} x {cfg['experiment']['candidates']} candidates ...", flush=True)
     dyn, problems, cands = candidates(cfg, args.problems, args.seed)

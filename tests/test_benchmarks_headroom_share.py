@@ -27,3 +27,14 @@ def test_a_bad_problem_count_is_refused_before_any_compute(capsys):
     with pytest.raises(SystemExit):
         main(["--problems", "0"])
     assert "--problems 0: allowed an integer >= 1" in capsys.readouterr().err
+
+
+def test_a_leaf_alone_is_the_whole_plant():
+    from sim.world import WorldConfig
+
+    world = compose_config([])["world"]
+    w = leaf_world(world, 0.05, 0.30, alone=True)
+    assert len(w["plant"]["leaves"]) == 1 and list(w["plant"]["leaves"][0]["center"]) == [0.025, 0.30]
+    assert w["plant"]["stem_height"] < world["plant"]["stem_height"]
+    shapes = WorldConfig.from_mapping(w).plant_shapes()  # a valid world: a stub of a stem and the leaf
+    assert [sh.kind for sh in shapes] == ["capsule", "ellipse"]
