@@ -209,7 +209,12 @@ class _Search:
         self.S[0] = start
         self.gdist[0] = float(self._goal_dist(start))
         self.n = 1
+        self.idle_limit = 20000  # expansions without progress that end the search: max(20000, 50 * n)
         self.queues: dict[int, _Queue] = {}
+        #: nodes that will never get another proposal (at the depth limit, or their last-step tries spent):
+        #: OMPL keeps choosing them as nearest nodes (~90 % of its extensions on the experiment's batches,
+        #: benchmarks/planner_profile.py), so the propagator turns them away before any other work
+        self.closed: set[int] = set()
         self.rows = 0
         self.mde_rows = 0
         self.expansions = 0
@@ -227,7 +232,7 @@ class _Search:
         self.expansions += 1
         try:
             pid = int(state[_META][0])
-            nid = self._take(pid) if pid >= 0 else -1
+            nid = -1 if pid < 0 or pid in self.closed else self._take(pid)
             if nid < 0:
                 self.idle += 1
                 result[_META][0] = _INVALID
@@ -299,7 +304,7 @@ class _Search:
         try:
             if self.error is not None or self.rows >= self.budget:
                 return True
-            if self.idle > max(20000, 50 * self.n):
+            if self.idle > self.idle_limit:
                 return True
             if time.perf_counter() >= self.deadline:
                 self.timed_out = True
@@ -314,12 +319,16 @@ class _Search:
         q = self.queues.get(pid)
         if q is None or q.pos >= q.size:
             if self.depth[pid] >= self.c.max_actions:
+                self.closed.add(pid)
                 return -1
             if self.depth[pid] + 1 >= self.c.max_actions:
                 # last step: only a goal hit is admissible, which is rare, so a node gets a
                 # bounded number of finishing attempts in small batches
                 done = 0 if q is None else q.total
                 k = min(self.c.batch_min, self.c.last_step_proposals - done)
+                if k <= 0:
+                    self.closed.add(pid)
+                    return -1
             else:  # batches double per refill of the same node
                 k = self.c.batch_min if q is None else min(2 * q.k, self.c.batch_max)
             k = min(k, self.budget - self.rows)
@@ -435,6 +444,7 @@ class _Search:
         self.depth[nid] = self.depth[pid] + 1
         self.gdist[nid] = q.gd[i]
         self.n = nid + 1
+        self.idle_limit = max(20000, 50 * self.n)
         self.idle = 0
         return nid
 
