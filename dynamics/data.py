@@ -364,33 +364,15 @@ def generate_transitions(
     for b in bar:
         key = [seed, b, world, B, keep_all_stuck] + (["pours"] if pours else [])
         shard = shard_dir / f"{'pours' if pours else 'batch'}{b:04d}.pt" if shard_dir else None
-        if shard is not None and shard.is_file():
-            try:
-                part = Transitions.load(shard)
-                if part.meta.get("shard_key") == key and part.meta.get("config") == ident:
-                    parts.append(part)
-                    _add_counts(counts, part.meta["counts"])
-                    continue
-                log.warning("regenerating shard %s: another configuration made it", shard)
-            except DynamicsError as e:
-                log.warning("ignoring unreadable shard %s: %s", shard, e)
-        rng = np.random.default_rng([seed, b, world_code] + ([1] if pours else []))
-        if world == "target":
-            jit = np.array([p.plant_jitter for p in sample_problems(wcfg, B, int(rng.integers(2**31)), "target")])
-        else:
-            jit = np.zeros((B, 3))
-        if pours:
-            starts, seqs = zip(*(sampler.focused_pour(rng, world, jit[i]) for i in range(B)))
-        else:
-            starts, seqs = zip(*(sampler.sample(rng, world, jit[i], keep_all_stuck) for i in range(B)))
-        results = ex.run(world, np.array(starts), list(seqs), plant_jitter=jit if world == "target" else None)
-        part, c = _collect(results, jit, traj_offset=first_traj + b * B)
-        c["sim_seconds"] = float(ex.last_timing.get("sim_seconds", 0.0))
-        part.meta = {"shard_key": key, "config": ident, "counts": c}
-        if shard is not None:
-            part.save(shard)
+        part = _saved_shard(shard, key, ident)
+        if part is None:
+            rng = np.random.default_rng([seed, b, world_code] + ([1] if pours else []))
+            part = _simulate_batch(ex, sampler, wcfg, world, rng, B, keep_all_stuck, pours, first_traj + b * B)
+            part.meta = {"shard_key": key, "config": ident, "counts": part.meta["counts"]}
+            if shard is not None:
+                part.save(shard)
         parts.append(part)
-        _add_counts(counts, c)
+        _add_counts(counts, part.meta["counts"])
         bar.set_postfix(transitions=sum(len(p) for p in parts), unstable=counts["unstable"])
     bar.close()
     from sim.engine.backend import cpu_fingerprint  # Taichi, as above
@@ -410,6 +392,48 @@ def generate_transitions(
     }
     out.validate()
     return out
+
+
+def _saved_shard(shard: Path | None, key: list, ident: str | None) -> Transitions | None:
+    """The saved batch at ``shard`` if the same key and configuration made it, else None (it is simulated again)."""
+    if shard is None or not shard.is_file():
+        return None
+    try:
+        part = Transitions.load(shard)
+        if part.meta.get("shard_key") == key and part.meta.get("config") == ident:
+            return part
+        log.warning("regenerating shard %s: another configuration made it", shard)
+    except DynamicsError as e:
+        log.warning("ignoring unreadable shard %s: %s", shard, e)
+    return None
+
+
+def _simulate_batch(
+    ex: Any,
+    sampler: Any,
+    wcfg: Any,
+    world: str,
+    rng: np.random.Generator,
+    B: int,
+    keep_all_stuck: bool,
+    pours: bool,
+    traj_offset: int,
+) -> Transitions:
+    """One batch of B sequences (focused pours or random sequences) drawn from ``rng`` and executed in ``world``;
+    its counts in ``meta["counts"]``. In the target world the plant poses are drawn like a planning problem's."""
+    if world == "target":
+        jit = np.array([p.plant_jitter for p in sample_problems(wcfg, B, int(rng.integers(2**31)), "target")])
+    else:
+        jit = np.zeros((B, 3))
+    if pours:
+        starts, seqs = zip(*(sampler.focused_pour(rng, world, jit[i]) for i in range(B)))
+    else:
+        starts, seqs = zip(*(sampler.sample(rng, world, jit[i], keep_all_stuck) for i in range(B)))
+    results = ex.run(world, np.array(starts), list(seqs), plant_jitter=jit if world == "target" else None)
+    part, c = _collect(results, jit, traj_offset=traj_offset)
+    c["sim_seconds"] = float(ex.last_timing.get("sim_seconds", 0.0))
+    part.meta = {"counts": c}
+    return part
 
 
 def shard_identity(data: DataConfig, wcfg: Any, pours: bool = False) -> str:
