@@ -418,19 +418,7 @@ def failed_run(request: PlanRequest, error: BaseException, config: PlannerConfig
     """A single run that raised, recorded as a run that found nothing (``termination="error"``), with the
     seed that run reports."""
     seed, _ = run_seeds(run_seed_sequence(config, request.seed))
-    stats = PlannerStats(
-        found=False,
-        time_s=0.0,
-        propagations=0,
-        mde_evaluations=0,
-        expansions=0,
-        rejected=0,
-        tree_size=0,
-        termination="error",
-        seed=seed,
-        best_goal_distance=float("inf"),
-        error=f"{type(error).__name__}: {error}",
-    )
+    stats = PlannerStats.unexpanded("error", seed, float("inf"), tree_size=0, error=f"{type(error).__name__}: {error}")
     return PlanResult(None, stats)
 
 

@@ -95,6 +95,31 @@ class PlannerStats:
     best_goal_distance: float
     error: str = ""
 
+    @classmethod
+    def unexpanded(
+        cls,
+        termination: str,
+        seed: int,
+        best_goal_distance: float,
+        time_s: float = 0.0,
+        tree_size: int = 1,
+        error: str = "",
+    ) -> "PlannerStats":
+        """A run that expanded nothing ("trivial", "unreachable", "error"): found only when trivial, all counts 0."""
+        return cls(
+            found=termination == "trivial",
+            time_s=time_s,
+            propagations=0,
+            mde_evaluations=0,
+            expansions=0,
+            rejected=0,
+            tree_size=tree_size,
+            termination=termination,
+            seed=seed,
+            best_goal_distance=best_goal_distance,
+            error=error,
+        )
+
     @property
     def propagations_per_s(self) -> float:
         return self.propagations / self.time_s if self.time_s > 0 else float("nan")

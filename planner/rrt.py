@@ -642,39 +642,12 @@ class Planner:
 
         if search.gdist[0] <= 0.0:  # the start already satisfies the goal: the empty plan
             traj = search.trajectory_to(0)
-            return PlanResult(
-                traj,
-                PlannerStats(
-                    found=True,
-                    time_s=time.perf_counter() - t0,
-                    propagations=0,
-                    mde_evaluations=0,
-                    expansions=0,
-                    rejected=0,
-                    tree_size=1,
-                    termination="trivial",
-                    seed=seed_repr,
-                    best_goal_distance=0.0,
-                ),
-            )
+            return PlanResult(traj, PlannerStats.unexpanded("trivial", seed_repr, 0.0, time.perf_counter() - t0))
 
         if c.prune_dead_states and bool(search._dead(start[None])[0]):
             # too much spilled / poured already or too little water left: no plan can exist
-            return PlanResult(
-                None,
-                PlannerStats(
-                    found=False,
-                    time_s=time.perf_counter() - t0,
-                    propagations=0,
-                    mde_evaluations=0,
-                    expansions=0,
-                    rejected=0,
-                    tree_size=1,
-                    termination="unreachable",
-                    seed=seed_repr,
-                    best_goal_distance=float(search.gdist[0]),
-                ),
-            )
+            stats = PlannerStats.unexpanded("unreachable", seed_repr, float(search.gdist[0]), time.perf_counter() - t0)
+            return PlanResult(None, stats)
 
         with _ompl_log(c.ompl_log_level), torch_threads(c.torch_threads), _one_blas_thread():
             goal_node = self._solve_with_ompl(search, start, ompl_seed % (2**31 - 1) + 1)

@@ -14,7 +14,6 @@ MAX_LINES = 80
 #: module:function -> its length today (to be split; never to grow)
 LONGER = {
     "planner/config.py:__post_init__": 89,
-    "planner/rrt.py:_run": 88,
 }
 
 
