@@ -19,6 +19,7 @@ can be served alone (:meth:`MethodRun.run`) or batched with every other run of a
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -378,11 +379,11 @@ class MethodRun:
     def _oracle_chunk(self, chunk: list[Problem], cand_sets: list, it: int, c0: int, t: dict):
         """The oracle bound's choices (:mod:`active.oracle`): every candidate of the chunk executed in one batch, each
         sampling its water as the slot of its problem (as the chosen trajectory of any other method does), then per
-        problem the candidate whose data most improve the validation admission gap; adds the times to ``t``. Returns
-        (choices, their results)."""
+        problem the candidate whose data score best (:class:`OracleBound`'s ``score``); adds the times to ``t``
+        (scoring, with its planning and simulation, as fit time). Returns (choices, their results)."""
         ctx, exp = self.ctx, self.ctx.exp
         t0 = time.perf_counter()
-        validation = yield from self._validation_set()
+        validation = (yield from self._validation_set()) if self.spec.score == "admission" else None
         rngs = [np.random.default_rng(derive_seed(ctx.seed, "choose", it, c0 + j)) for j in range(len(chunk))]
         options = [
             [
@@ -413,7 +414,10 @@ class MethodRun:
             data = [self._labelled([r]) for r in outcomes]
             k = 0
             if len(opts) > 1:
-                scores = score_candidates(self.make_mde, X, y, data, validation, exp.d_max, exp.beta_test)
+                if validation is not None:
+                    scores = score_candidates(self.make_mde, X, y, data, validation, exp.d_max, exp.beta_test)
+                else:
+                    scores = yield from self._success_scores(X, y, data)
                 k = best(scores, rngs[j])
                 opts[k].scores = scores
                 opts[k].chosen = k
@@ -422,6 +426,43 @@ class MethodRun:
             X, y = torch.cat([X, data[k][0]]), torch.cat([y, data[k][1]])
         t["fit"] += time.perf_counter() - tf
         return choices, results
+
+    def _success_scores(self, X: torch.Tensor, y: torch.Tensor, data: list):
+        """Per candidate (``data[k]``: its labelled transitions), the test planner's success on the oracle's held-out
+        problems with an MDE fitted on (X, y) plus the candidate's data: every candidate's plans in one batch each,
+        every found plan executed in one batch (validation problem k samples its water as slot k, whoever planned it);
+        a fit that fails, or fits nothing, scores -inf."""
+        ctx, exp = self.ctx, self.ctx.exp
+        n, stream = self.spec.validation_problems, derive_seed(ctx.seed, "oracle-validation-problems")
+        probs = sample_problems(ctx.world, n, stream, world="target")
+        reqs = [
+            PlanRequest(
+                "plan",
+                p.start,
+                p.goal,
+                beta=exp.beta_test,
+                d_max=exp.d_max,
+                seed=derive_seed(ctx.seed, "oracle-validation-plan", k),
+            )
+            for k, p in enumerate(probs)
+        ]
+        plans = []
+        for Xc, yc in data:
+            mde = self.make_mde()
+            mde.fit(torch.cat([X, Xc]), torch.cat([y, yc]))  # a failed fit leaves it unfitted (warned)
+            plans.append((yield PlanNeed(reqs, mde)) if mde.is_fitted else None)
+        found = [(c, k) for c, f in enumerate(plans) if f is not None for k, r in enumerate(f) if r.found]
+        reached = np.zeros(len(data))
+        if found:
+            results = yield SimNeed(
+                [probs[k] for _, k in found],
+                [np.asarray(plans[c][k].trajectory.actions) for c, k in found],
+                len(data) * len(probs),
+                slots=[k for _, k in found],
+            )
+            for (c, _), r in zip(found, results):
+                reached[c] += bool(r.goal_reached)
+        return [reached[c] / len(probs) if plans[c] is not None else -math.inf for c in range(len(data))]
 
     def _labelled(self, results: list) -> tuple[torch.Tensor, torch.Tensor]:
         """Features and deviation labels of the transitions of executed trajectories (empty tensors if none)."""

@@ -7,7 +7,7 @@
 * ``active_cautious`` / ``active_mean`` / ``active_balanced``: the candidate that maximises the
   configured acquisition function (by default the paper's alpha with c = -0.1 / 0 / 0.1);
 * ``oracle``: not a method but a bound (:mod:`active.oracle`): every candidate executed, the one whose data most
-  improve the test precondition on a held-out validation set kept.
+  improve the test planner's success on held-out validation problems kept.
 
 The methods are specs in the ``methods:`` node of the run config (``configs/methods/default.yaml``:
 name -> ``_target_`` and its arguments), built with ``hydra.utils.instantiate``: a new method is a YAML
@@ -78,13 +78,25 @@ class RandomActions(Method):
 
 
 class OracleBound(Method):
-    """The oracle bound (:mod:`active.oracle`): the loop executes every candidate and keeps the best one's data, so
-    it chooses after execution, not here. ``validation_trajectories``: the held-out target-world trajectories its
-    score is measured on (made once per run, half of them plans of the model alone)."""
+    """The oracle bound (:mod:`active.oracle`): the loop executes every candidate and keeps the one whose data score
+    best, so it chooses after execution, not here. ``score``: ``success`` (the test planner's success, with an MDE
+    fitted on the data plus the candidate's, on ``validation_problems`` held-out target-world problems: the endpoint
+    itself) or ``admission`` (the test precondition's admission of good minus bad transitions on
+    ``validation_trajectories`` held-out target-world trajectories: cheaper, refuted by a pilot, results/headroom)."""
 
-    def __init__(self, validation_trajectories: int = 64) -> None:
+    SCORES = ("success", "admission")
+
+    def __init__(
+        self, score: str = "success", validation_problems: int = 10, validation_trajectories: int = 64
+    ) -> None:
+        if score not in self.SCORES:
+            raise ValueError(f"oracle: score = {score!r}: allowed one of {list(self.SCORES)}")
+        if int(validation_problems) < 1:
+            raise ValueError(f"oracle: validation_problems = {validation_problems!r}: allowed an integer >= 1")
         if int(validation_trajectories) < 2:
             raise ValueError(f"oracle: validation_trajectories = {validation_trajectories!r}: allowed an integer >= 2")
+        self.score = score
+        self.validation_problems = int(validation_problems)
         self.validation_trajectories = int(validation_trajectories)
 
     def choose(self, candidates, rng, random_actions, make_acquisition=None) -> Choice:

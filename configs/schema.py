@@ -64,8 +64,10 @@ METHOD_PARAMS = {
     "active.methods.RandomPlan": (),
     "active.methods.ModelPlan": (),
     "active.methods.ActiveChoice": ("acquisition",),
-    "active.methods.OracleBound": ("validation_trajectories",),
+    "active.methods.OracleBound": ("score", "validation_problems", "validation_trajectories"),
 }
+#: the oracle bound's fields of a method spec (:class:`Method`)
+ORACLE_FIELDS = METHOD_PARAMS["active.methods.OracleBound"]
 #: Hydra's keys of an instantiable spec that the acquisition factory accepts besides the class's parameters
 SPEC_KEYS = ("_target_", "_partial_")
 
@@ -606,6 +608,8 @@ class Method(Group):
 
     target: dotted() = Field(alias="_target_")
     acquisition: Optional[AcquisitionArgs] = None
+    score: one_of("success", "admission") = None  # active.methods.OracleBound (OracleBound.SCORES)
+    validation_problems: integer(ge=1) = None  # active.methods.OracleBound
     validation_trajectories: integer(ge=2) = None  # active.methods.OracleBound
 
     @model_validator(mode="after")
@@ -613,11 +617,7 @@ class Method(Group):
         given = {
             "_target_": self.target,
             **({"acquisition": self.acquisition} if "acquisition" in self.model_fields_set else {}),
-            **(
-                {"validation_trajectories": self.validation_trajectories}
-                if "validation_trajectories" in self.model_fields_set
-                else {}
-            ),
+            **{k: getattr(self, k) for k in ORACLE_FIELDS if k in self.model_fields_set},
             **(self.model_extra or {}),
         }
         if self.target in METHOD_PARAMS:

@@ -169,14 +169,18 @@ def test_lockstep_over_two_seeds_resumes_to_more_iterations_with_the_straight_re
 
 @pytest.fixture(scope="module")
 def three_methods(cache, tmp_path_factory) -> Path:
-    """One round of active_balanced, random_plan and the oracle bound (validation set of 4 trajectories)."""
+    """One round of active_balanced, random_plan and the oracle bound scored both ways: by the test planner's success
+    on 2 held-out problems (``oracle``) and by the admission gap on 4 held-out trajectories (``oracle_admission``)."""
     out = tmp_path_factory.mktemp("three-methods")
     over = [o for o in _overrides(cache) if not o.startswith("method=")]
     over += [
         "method=all",
-        f"experiment.methods=[{METHOD},random_plan,oracle]",
+        f"experiment.methods=[{METHOD},random_plan,oracle,oracle_admission]",
         "experiment.iterations=1",
-        "methods.oracle.validation_trajectories=4",
+        "methods.oracle.validation_problems=2",
+        "+methods.oracle_admission._target_=active.methods.OracleBound",
+        "+methods.oracle_admission.score=admission",
+        "+methods.oracle_admission.validation_trajectories=4",
     ]
     run_experiment(compose_config(over), out)
     return out
@@ -201,16 +205,20 @@ def test_methods_draw_common_random_numbers_so_round_one_is_the_same_for_every_p
 
 
 def test_the_oracle_chooses_among_the_same_candidates_after_executing_them_and_keeps_one_per_problem(three_methods):
-    """The oracle plans the same candidate sets as random_plan in round 1 (no MDE yet, the same seeds), executes
-    them all and keeps one trajectory per problem; its validation set (4 trajectories, its own problems) is kept in
-    its state, and its dataset holds exactly its kept trajectories' transitions."""
+    """Both oracles plan the same candidate sets as random_plan in round 1 (no MDE yet, the same seeds), execute
+    them all and keep one trajectory per problem, so their datasets hold exactly their kept trajectories'
+    transitions; the admission-scored one keeps its validation set (4 trajectories, its own problems) in its state."""
     from active.rundir import load_state
 
     out = three_methods
-    mine, theirs = _rows(out, "oracle", "categories.csv"), _rows(out, "random_plan", "categories.csv")
-    assert [(r["goal"], r["n_candidates"]) for r in mine] == [(r["goal"], r["n_candidates"]) for r in theirs]
-    assert {r["source"] for r in mine} <= {"plan", "fallback"}
-    st = load_state(out / "oracle" / "state.pt")
+    theirs = _rows(out, "random_plan", "categories.csv")
+    for oracle in ("oracle", "oracle_admission"):
+        mine = _rows(out, oracle, "categories.csv")
+        assert [(r["goal"], r["n_candidates"]) for r in mine] == [(r["goal"], r["n_candidates"]) for r in theirs]
+        assert {r["source"] for r in mine} <= {"plan", "fallback"}
+        st = load_state(out / oracle / "state.pt")
+        steps = sum(int(r["steps"]) for r in mine)
+        assert len(st["y"]) == steps and len(st["X"]) == steps
+        assert ("validation" in st) == (oracle == "oracle_admission")
+    st = load_state(out / "oracle_admission" / "state.pt")
     assert len(st["validation"]["y"]) > 0 and st["validation"]["X"].shape == (len(st["validation"]["y"]), 8)
-    steps = sum(int(r["steps"]) for r in mine)
-    assert len(st["y"]) == steps and len(st["X"]) == steps

@@ -64,9 +64,14 @@ def test_ties_are_broken_at_random_among_the_best_only():
 
 
 def test_the_oracle_is_built_from_the_registry_and_refuses_a_validation_set_too_small_to_score():
-    assert isinstance(build_method("oracle"), OracleBound)
-    assert build_method("oracle").validation_trajectories == 64
+    oracle = build_method("oracle")
+    assert isinstance(oracle, OracleBound)
+    assert (oracle.score, oracle.validation_problems, oracle.validation_trajectories) == ("success", 10, 64)
     with pytest.raises(ValueError, match="validation_trajectories = 1: allowed an integer >= 2"):
         OracleBound(validation_trajectories=1)
+    with pytest.raises(ValueError, match="validation_problems = 0: allowed an integer >= 1"):
+        OracleBound(validation_problems=0)
+    with pytest.raises(ValueError, match=r"score = 'gap': allowed one of \['success', 'admission'\]"):
+        OracleBound(score="gap")
     with pytest.raises(TypeError, match="chooses after executing every candidate"):
         OracleBound().choose([], np.random.default_rng(0), lambda: None)
