@@ -1,20 +1,22 @@
 """The oracle bound: how much better than a random pick any choice among the same candidates can be.
 
 Not a method a robot could run: each round it executes all N candidates of a problem (one simulation batch) and
-keeps, as the trajectory it learns from, the candidate whose data most improve the test precondition on a held-out
-target-world validation set. So it sees what no acquisition may see: every candidate's real outcome and the
-validation set's true deviations. What it answers: choosing among the candidates random_plan chooses from (common
-random numbers, :mod:`active.seeds`), how much better can data collection get? The report draws it as a bound.
+keeps, as the trajectory it learns from, the candidate whose data score best on held-out target-world data. So it
+sees what no acquisition may see: every candidate's real outcome and the held-out truth. What it answers: choosing
+among the candidates random_plan chooses from (common random numbers, :mod:`active.seeds`), how much better can data
+collection get? The report draws it as a bound. Choices are greedy within a chunk: a problem's candidates are scored
+with the data of the problems before it in the chunk.
 
-The score (:func:`admission_gap`) is the test precondition's admission of good transitions (true deviation below
-``d_max``) minus its admission of bad ones, on the validation set (half plans of the model alone, half random
-actions, in the target world: the recipe of the ladder's ceiling sets, on problems drawn from a stream of their own,
-so disjoint from the test problems); the ceiling sets' admission gap predicts the plan-found rate with r = 0.92
-(BENCHMARKS.md, "Admission of the saved ceiling sets"). Choices are greedy within a chunk: a problem's candidates
-are scored with the data of the problems before it in the chunk.
+Two scores (``active.methods.OracleBound``):
 
-Cost, per round: N x M extra trajectories simulated (in one batch with the chosen ones), N x M MDE fits, and once
-per run the validation set (``validation_trajectories`` simulated, half of them planned first).
+* ``success`` (default; scored by ``active.loop.MethodRun``, which plans and executes): the endpoint itself, the test
+  planner's success on ``validation_problems`` held-out problems (a stream of their own, disjoint from the test
+  problems) with an MDE fitted on the data plus the candidate's. Cost per round: N x M extra trajectories, N x M MDE
+  fits, N x M x ``validation_problems`` plans and executions.
+* ``admission`` (:func:`admission_gap`): the test precondition's admission of good transitions (true deviation below
+  ``d_max``) minus its admission of bad ones on a held-out set of ``validation_trajectories`` trajectories (half plans
+  of the model alone, half random actions: the ladder's ceiling recipe), made once per run. Cheaper, and refuted by a
+  pilot: the admission gap of MDEs of a few dozen transitions is not their plan-found rate (results/headroom/).
 """
 
 from __future__ import annotations
