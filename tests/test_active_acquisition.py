@@ -209,6 +209,7 @@ def test_default_acquisition_is_the_papers_alpha_and_methods_carry_c():
         "active_straddle",
         "active_thompson",
         "model_plan",
+        "oracle",
         "random_actions",
         "random_plan",
     ]
@@ -217,6 +218,7 @@ def test_default_acquisition_is_the_papers_alpha_and_methods_carry_c():
         "random_actions": None,
         "random_plan": None,
         "model_plan": None,
+        "oracle": None,  # a bound: it scores executed candidates, no acquisition
         "active_cautious": {"c": -0.1},
         "active_mean": {"c": 0.0},
         "active_balanced": {"c": 0.1},
