@@ -162,15 +162,21 @@ def execute_plans(executor, world_name: str, problems, plans) -> list:
 def model_only(world, world_name: str, pool, exp, executor, n: int, seed: int) -> dict:
     """Plans from the model alone (no MDE) for n problems, executed in ``world_name``."""
     problems = sample_problems(world, n, derive_seed(seed, "ladder-problems", world_name), world=world_name)
+    return plan_and_execute(world, world_name, pool, None, problems, exp, executor, seed, f"model-only-{world_name}")
+
+
+def plan_and_execute(world, world_name: str, pool, mde, problems, exp, executor, seed: int, purpose: str) -> dict:
+    """One plan per problem (:func:`plan_all`, with ``mde``), the found ones executed in ``world_name``: found and
+    success rates, outcomes, planning time and per-problem records."""
     t0 = time.perf_counter()
-    plans = plan_all(pool, None, problems, exp, seed, f"model-only-{world_name}")
+    plans = plan_all(pool, mde, problems, exp, seed, purpose)
     t_plan = time.perf_counter() - t0
     res = execute_plans(executor, world_name, problems, plans)
     done = [r for r in res if r is not None]
     return {
-        "n": n,
-        "found": len(done) / n,
-        "success": sum(bool(r.goal_reached) for r in done) / n,
+        "n": len(problems),
+        "found": len(done) / len(problems),
+        "success": sum(bool(r.goal_reached) for r in done) / len(problems),
         **outcomes(world, done),
         "plan_seconds": t_plan,
         "problems": per_problem(problems, res),
@@ -382,19 +388,7 @@ def ceiling_test(world, pool, mde, exp, executor, n: int, seed: int) -> dict:
     execute the plans found: found, success, outcomes, planning time and per-problem records. Any MDE can be put
     on the same problems this way (a run's own, one fitted on pooled data)."""
     test = sample_problems(world, n, derive_seed(seed, "ladder-ceiling-test"), world="target")
-    t0 = time.perf_counter()
-    plans = plan_all(pool, mde, test, exp, seed, "ceiling-test")
-    t_plan = time.perf_counter() - t0
-    res = execute_plans(executor, "target", test, plans)
-    done = [r for r in res if r is not None]
-    return {
-        "n": n,
-        "found": len(done) / n,
-        "success": sum(bool(r.goal_reached) for r in done) / n,
-        **outcomes(world, done),
-        "plan_seconds": t_plan,
-        "problems": per_problem(test, res),
-    }
+    return plan_and_execute(world, "target", pool, mde, test, exp, executor, seed, "ceiling-test")
 
 
 def _admission(mu: np.ndarray, sd: np.ndarray, y: np.ndarray, exp, prefix: str) -> dict:
@@ -505,7 +499,7 @@ def _checked_inputs(
     if unknown:
         raise ValueError(f"--rungs {unknown}: allowed any of {list(RUNGS)}")
     ceiling_runs = _ceiling_runs(seed, ceiling_seeds, ceiling_data, out)
-    settings = read_settings({**cfg, "method": "all"})
+    settings = read_settings(cfg, method="all")
     if "ceiling" in rungs:
         for _, data_file, reuse in ceiling_runs:
             if reuse:

@@ -391,7 +391,7 @@ class MethodRun:
                 for k, t in enumerate(cands.candidates)
             ]
             if cands is not None and len(cands.candidates)
-            else [RandomPlan().choose([], rng, lambda rng=rng: self.sampler.sample(exp.random_actions_length, rng))]
+            else [Choice(self.sampler.sample(exp.random_actions_length, rng), "fallback", 0)]  # as RandomPlan's
             for cands, rng in zip(cand_sets, rngs)
         ]
         firsts = yield from self._plan_fallbacks(chunk, [o[0] for o in options], it, c0)
@@ -435,17 +435,7 @@ class MethodRun:
         ctx, exp = self.ctx, self.ctx.exp
         n, stream = self.spec.validation_problems, derive_seed(ctx.seed, "oracle-validation-problems")
         probs = sample_problems(ctx.world, n, stream, world="target")
-        reqs = [
-            PlanRequest(
-                "plan",
-                p.start,
-                p.goal,
-                beta=exp.beta_test,
-                d_max=exp.d_max,
-                seed=derive_seed(ctx.seed, "oracle-validation-plan", k),
-            )
-            for k, p in enumerate(probs)
-        ]
+        reqs = requests_at_test(probs, exp, ctx.seed, "oracle-validation-plan")
         plans = []
         for Xc, yc in data:
             mde = self.make_mde()
@@ -513,17 +503,7 @@ class MethodRun:
     def _test(self, mde: Any, it: int):
         """Plan the test problems with beta_test, execute the plans found; returns (success, found) rates."""
         ctx, exp = self.ctx, self.ctx.exp
-        reqs = [
-            PlanRequest(
-                "plan",
-                prob.start,
-                prob.goal,
-                beta=exp.beta_test,
-                d_max=exp.d_max,
-                seed=derive_seed(ctx.seed, "test-plan", it, k),
-            )
-            for k, prob in enumerate(ctx.test_problems)
-        ]
+        reqs = requests_at_test(ctx.test_problems, exp, ctx.seed, "test-plan", it)
         found = yield PlanNeed(reqs, mde)  # a failed plan counts as not found
         self.plan_errors += sum(res.stats.termination == "error" for res in found)
         plans = [res.trajectory if res.found else None for res in found]
@@ -558,6 +538,15 @@ class MethodRun:
         X, y = self.ctx.calibration["X"], self.ctx.calibration["y"]
         if len(y):
             self.state["calibration"].append(calibration_row(self.mde, X, y, self.method, self.ctx.seed, it + 1))
+
+
+def requests_at_test(problems: list[Problem], exp: ExperimentConfig, seed: int, *key: Any) -> list[PlanRequest]:
+    """One plan per problem under the test precondition (``beta_test``, ``d_max``), problem k seeded by
+    (seed, *key, k): the test problems of a round, the oracle's validation problems."""
+    return [
+        PlanRequest("plan", p.start, p.goal, beta=exp.beta_test, d_max=exp.d_max, seed=derive_seed(seed, *key, k))
+        for k, p in enumerate(problems)
+    ]
 
 
 def _candidate_steps(cand_sets: list) -> torch.Tensor | None:

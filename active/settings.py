@@ -32,11 +32,12 @@ class Settings:
     workers: int
 
 
-def read_settings(cfg: Mapping[str, Any]) -> Settings:
-    """The typed :class:`Settings` of a composed run config (errors name the key and what is allowed)."""
-    exp = ExperimentConfig.from_mapping(
-        cfg["experiment"], method=str(cfg.get("method", "all")), registry=cfg.get("methods")
-    )
+def read_settings(cfg: Mapping[str, Any], method: str | None = None) -> Settings:
+    """The typed :class:`Settings` of a composed run config (errors name the key and what is allowed); ``method``
+    replaces the config's ``method`` (``"all"``: every method of the experiment, as the tools that plan for a run
+    want)."""
+    method = str(cfg.get("method", "all")) if method is None else method
+    exp = ExperimentConfig.from_mapping(cfg["experiment"], method=method, registry=cfg.get("methods"))
     world = WorldConfig.from_mapping(cfg["world"])
     check_geometry(world)
     return Settings(

@@ -53,7 +53,7 @@ def labelled_set(paths: Sequence[Path], overrides: Sequence[str], trajectories: 
     from sim.skills import POUR
 
     cfg = compose_config(list(overrides))
-    settings = read_settings({**cfg, "method": "all"})
+    settings = read_settings(cfg, method="all")
     exp, world = settings.exp, settings.world
     dyn = planning_dynamics(settings.dynamics, world, exp)
     parts = []

@@ -61,7 +61,7 @@ def candidates(cfg: dict, n_problems: int, seed: int) -> tuple[Any, list, list]:
     from planner.pool import PlanPool, PlanRequest
     from sim.problems import sample_problems
 
-    settings = read_settings({**cfg, "method": "all"})
+    settings = read_settings(cfg, method="all")
     exp, world = settings.exp, settings.world
     dyn = planning_dynamics(settings.dynamics, world, exp)
     per = exp.trajectories_per_iteration

@@ -157,7 +157,7 @@ def take_apart(
         raise FileNotFoundError(f"--mde: no such file: {missing}")
     t_all = time.perf_counter()
     cfg = compose_config(list(overrides))
-    settings = read_settings({**cfg, "method": "all"})
+    settings = read_settings(cfg, method="all")
     exp, world = settings.exp, settings.world
     dyn = planning_dynamics(settings.dynamics, world, exp)
     seeds = [set_seed(Path(p), None if set_seeds is None else set_seeds[k]) for k, p in enumerate(sets)]

@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> dict:
     from task import state_distance
 
     cfg = compose_config(list(args.overrides) + ["progress=false"])
-    settings = read_settings({**cfg, "method": "all"})
+    settings = read_settings(cfg, method="all")
     exp, world = settings.exp, settings.world
     dyn = planning_dynamics(settings.dynamics, world, exp)
     seed = int(cfg.get("seed", 0))

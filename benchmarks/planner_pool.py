@@ -70,12 +70,13 @@ def fingerprint(r: Any) -> Any:
 
 def experiment_batches(cfg: dict, seed: int, iteration: int) -> tuple[Any, Any, dict[str, list[PlanRequest]], dict]:
     """Dynamics model, planner config and the two request batches exactly as ``active.run`` builds them."""
+    from active.loop import requests_at_test
     from active.planner_setup import planning_dynamics
     from active.seeds import derive_seed
     from active.settings import read_settings
     from sim.problems import sample_problems
 
-    settings = read_settings({**cfg, "method": "all"})
+    settings = read_settings(cfg, method="all")
     exp, world, planner_cfg = settings.exp, settings.world, settings.planner
     t = time.perf_counter()
     dyn = planning_dynamics(settings.dynamics, world, exp)
@@ -86,17 +87,7 @@ def experiment_batches(cfg: dict, seed: int, iteration: int) -> tuple[Any, Any, 
     )[: exp.refit_every]
     method = exp.methods[0]
     batches = {
-        "test": [
-            PlanRequest(
-                "plan",
-                p.start,
-                p.goal,
-                beta=exp.beta_test,
-                d_max=exp.d_max,
-                seed=derive_seed(seed, "test-plan", iteration, k),
-            )
-            for k, p in enumerate(test)
-        ],
+        "test": requests_at_test(test, exp, seed, "test-plan", iteration),
         "train": [
             PlanRequest(
                 "candidates",

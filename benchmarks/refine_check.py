@@ -52,7 +52,7 @@ def run_check(
     if not cfg_path.is_file():
         raise FileNotFoundError(f"{cfg_path} not found: RUN_DIR must be the output directory of python -m active.run")
     cfg = json.loads(cfg_path.read_text())
-    settings = read_settings({**cfg, "method": "all"})
+    settings = read_settings(cfg, method="all")
     exp, world, planner_cfg = settings.exp, settings.world, settings.planner
     if steps < 1 or not lr > 0:
         raise ValueError(f"--steps {steps} / --lr {lr}: allowed steps >= 1 and lr > 0")

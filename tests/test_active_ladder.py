@@ -9,18 +9,9 @@ from active.ladder import RUNGS, main, table
 
 @pytest.mark.slow  # compiles its own kernels: about 30-70 s in a fresh clone (CI time)
 def test_tiny_ladder_writes_every_rung(tmp_path, capsys):
-    cache = tmp_path / "cache"
-    overrides = [
-        "experiment=tiny",
-        "wandb.mode=disabled",
-        "progress=false",
-        f"dynamics.cache_root={cache}",
-        "dynamics.progress=false",
-        "dynamics.data.n_batches=1",
-        "dynamics.data.batch_size=2",
-        "dynamics.data.pour_batches=0",
-        "dynamics.train.max_epochs=5",
-    ]
+    from tests.test_active_run import tiny_overrides
+
+    overrides = tiny_overrides(tmp_path / "cache")
     main(
         [
             "--out",
